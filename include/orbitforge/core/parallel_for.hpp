@@ -1,0 +1,145 @@
+#pragma once
+// A small persistent thread pool and parallel_for. Work items are dealt out
+// dynamically (an atomic counter) so uneven items, such as tiles with very
+// different Gaussian counts, balance across threads. The calling thread works
+// too. A call made while the pool is busy (nested, or from another thread) runs
+// inline rather than waiting, so parallel_for never deadlocks.
+#include <algorithm>
+#include <atomic>
+#include <condition_variable>
+#include <cstddef>
+#include <exception>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "orbitforge/core/config.hpp"
+
+namespace orbitforge {
+
+inline int hardware_threads() {
+  const unsigned n = std::thread::hardware_concurrency();
+  return n == 0 ? 1 : int(n);
+}
+
+// 0 means "the default": ORBITFORGE_DEFAULT_THREADS if set, else all hardware threads.
+inline int resolve_threads(int requested) {
+  if (requested > 0) return requested;
+  if (ORBITFORGE_DEFAULT_THREADS > 0) return ORBITFORGE_DEFAULT_THREADS;
+  return hardware_threads();
+}
+
+class ThreadPool {
+ public:
+  explicit ThreadPool(int threads) : threads_(std::max(1, threads)) {
+    for (int w = 1; w < threads_; ++w) workers_.emplace_back([this, w] { worker_loop(w); });
+  }
+  ~ThreadPool() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    for (auto& t : workers_) t.join();
+  }
+  ThreadPool(const ThreadPool&) = delete;
+  ThreadPool& operator=(const ThreadPool&) = delete;
+
+  int size() const { return threads_; }
+
+  // Calls fn(i, worker) for every i in [0, n), worker in [0, size()).
+  // Blocks until all items are done; rethrows the first exception thrown by fn.
+  void run(std::size_t n, const std::function<void(std::size_t, int)>& fn) {
+    if (n == 0) return;
+    std::unique_lock<std::mutex> busy(busy_, std::try_to_lock);
+    if (threads_ == 1 || n == 1 || !busy.owns_lock()) {
+      for (std::size_t i = 0; i < n; ++i) fn(i, 0);
+      return;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      job_ = &fn;
+      count_ = n;
+      next_.store(0);
+      active_ = threads_ - 1;
+      error_ = nullptr;
+      ++generation_;
+    }
+    wake_.notify_all();
+    work(0);
+    std::unique_lock<std::mutex> lock(mutex_);
+    done_.wait(lock, [this] { return active_ == 0; });
+    job_ = nullptr;
+    if (error_) std::rethrow_exception(error_);
+  }
+
+ private:
+  void work(int worker) {
+    for (;;) {
+      const std::size_t i = next_.fetch_add(1);
+      if (i >= count_) return;
+      try {
+        (*job_)(i, worker);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (!error_) error_ = std::current_exception();
+        next_.store(count_);  // stop handing out work
+      }
+    }
+  }
+  void worker_loop(int worker) {
+    std::size_t seen = 0;
+    for (;;) {
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
+        if (stop_) return;
+        seen = generation_;
+      }
+      work(worker);
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (--active_ == 0) done_.notify_one();
+      }
+    }
+  }
+
+  int threads_;
+  std::vector<std::thread> workers_;
+  std::mutex mutex_, busy_;
+  std::condition_variable wake_, done_;
+  const std::function<void(std::size_t, int)>* job_ = nullptr;
+  std::size_t count_ = 0, generation_ = 0;
+  std::atomic<std::size_t> next_{0};
+  int active_ = 0;
+  bool stop_ = false;
+  std::exception_ptr error_;
+};
+
+// A process-wide pool per thread count, created on first use.
+inline ThreadPool& shared_pool(int threads) {
+  static std::mutex mutex;
+  static std::vector<std::unique_ptr<ThreadPool>> pools;
+  std::lock_guard<std::mutex> lock(mutex);
+  for (auto& p : pools)
+    if (p->size() == threads) return *p;
+  pools.push_back(std::make_unique<ThreadPool>(threads));
+  return *pools.back();
+}
+
+// parallel_for(n, threads, fn): fn(i, worker) for i in [0, n) on `threads`
+// threads (0 = default). worker < threads indexes per-thread scratch space.
+template <class F>
+void parallel_for(std::size_t n, int threads, F&& fn) {
+  threads = resolve_threads(threads);
+  if (threads == 1 || n <= 1) {
+    for (std::size_t i = 0; i < n; ++i) fn(i, 0);
+    return;
+  }
+  const std::function<void(std::size_t, int)> job = [&fn](std::size_t i, int w) { fn(i, w); };
+  shared_pool(threads).run(n, job);
+}
+
+}  // namespace orbitforge

@@ -1,0 +1,80 @@
+#include <catch2/catch.hpp>
+
+#include <atomic>
+#include <numeric>
+
+#include "orbitforge/core/camera.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+
+using namespace orbitforge;
+
+TEMPLATE_TEST_CASE("camera conventions round-trip", "[core][camera]", float, double) {
+  using S = TestType;
+  using Vec3 = Eigen::Matrix<S, 3, 1>;
+  const S tol = std::is_same<S, float>::value ? S(1e-5) : S(1e-12);
+  Intrinsics<S> k{S(500), S(510), S(320), S(240), 640, 480};
+  const Vec3 eye(S(3), S(-1), S(2)), target(S(0.1), S(0.2), S(-0.3)), up(S(0), S(0), S(1));
+  const auto cam = Camera<S>::look_at(eye, target, up, k);
+
+  SECTION("look_at: centre, forward, orthonormal, no roll") {
+    REQUIRE((cam.center() - eye).norm() < tol * 10);
+    REQUIRE((cam.forward() - (target - eye).normalized()).norm() < tol);
+    REQUIRE((cam.R * cam.R.transpose() - Eigen::Matrix<S, 3, 3>::Identity()).norm() < tol);
+    REQUIRE(cam.R.determinant() == Approx(1).margin(tol));
+    REQUIRE(std::abs(cam.right().dot(up)) < tol);  // no roll: x axis horizontal
+    REQUIRE(cam.up().dot(up) > 0);
+    // The target projects to the principal point.
+    const auto px = cam.project(target);
+    REQUIRE(px.x() == Approx(k.cx).margin(1e-3));
+    REQUIRE(px.y() == Approx(k.cy).margin(1e-3));
+  }
+  SECTION("OpenGL camera-to-world round trip") {
+    const auto gl = cam.to_opengl_camera_to_world();
+    // OpenGL looks along -z.
+    REQUIRE((-gl.template block<3, 1>(0, 2) - cam.forward()).norm() < tol);
+    const auto back = Camera<S>::from_opengl_camera_to_world(gl, k);
+    REQUIRE((back.R - cam.R).norm() < tol);
+    REQUIRE((back.t - cam.t).norm() < tol * 10);
+  }
+  SECTION("world_T_camera inverts camera_T_world") {
+    const Eigen::Matrix<S, 4, 4> m = cam.world_T_camera() * cam.camera_T_world();
+    REQUIRE((m - Eigen::Matrix<S, 4, 4>::Identity()).norm() < tol * 10);
+  }
+  SECTION("resized intrinsics scale the principal point") {
+    const auto k2 = k.resized(320, 240);
+    REQUIRE(k2.fx == Approx(250));
+    REQUIRE(k2.cy == Approx(120));
+  }
+  SECTION("degenerate look_at is an error") {
+    REQUIRE_THROWS_AS(Camera<S>::look_at(eye, eye, up, k), Error);
+    REQUIRE_THROWS_AS(Camera<S>::look_at(Vec3(0, 0, 5), Vec3(0, 0, 0), up, k), Error);
+  }
+}
+
+TEST_CASE("parallel_for visits every index once and propagates errors", "[core][parallel]") {
+  for (int threads : {1, 2, 4}) {
+    std::vector<std::atomic<int>> hits(1000);
+    parallel_for(hits.size(), threads, [&](std::size_t i, int worker) {
+      REQUIRE(worker < threads);
+      hits[i]++;
+    });
+    for (auto& h : hits) REQUIRE(h.load() == 1);
+    REQUIRE_THROWS_AS(parallel_for(100, threads,
+                                   [&](std::size_t i, int) {
+                                     if (i == 57) throw Error("boom");
+                                   }),
+                      Error);
+    // Nested use runs inline instead of deadlocking.
+    std::atomic<int> total{0};
+    parallel_for(8, threads, [&](std::size_t, int) { parallel_for(8, threads, [&](std::size_t, int) { total++; }); });
+    REQUIRE(total.load() == 64);
+  }
+}
+
+TEST_CASE("image indexing is row-major, channels fastest", "[core][image]") {
+  Image<float> im(3, 2, 3);
+  im(2, 1, 1) = 7.f;
+  REQUIRE(im.data[(1 * 3 + 2) * 3 + 1] == 7.f);
+  REQUIRE_THROWS_AS(Image<float>(-1, 2, 3), Error);
+}
