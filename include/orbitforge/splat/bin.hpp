@@ -1,0 +1,205 @@
+#pragma once
+// Tile binning: one global depth sort of the visible Gaussians per frame, then
+// per-tile lists of those Gaussians in depth order.
+//
+//   visible   radius > 0 and a non-empty rect (ProjectedSplats' inclusive pixel
+//             rectangle, already clipped to the image)
+//   order     rank -> Gaussian index, sorted by (depth, index): a stable LSD
+//             radix sort on the depth bits, so equal depths keep index order
+//             and the result is deterministic
+//   records   the visible Gaussians packed in rank order, one cache line each
+//             (float), so a tile streams through contiguous memory
+//   tiles     tile t's list is tile_ranks[tile_offsets[t] .. tile_offsets[t+1]),
+//             ascending rank = front to back; a Gaussian is listed in exactly
+//             the tiles its rect touches (tiles it cannot reach are skipped)
+//
+// Built with a counting pass and a prefix sum into caller-owned buffers that are
+// reused across frames: no allocation once the workspace has grown.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <type_traits>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/splat/projected.hpp"
+
+namespace orbitforge {
+
+struct TileGrid {
+  int width = 0, height = 0, tile_size = 16;
+  int tiles_x = 0, tiles_y = 0;
+
+  TileGrid() = default;
+  TileGrid(int w, int h, int ts) : width(w), height(h), tile_size(ts) {
+    ensure(w > 0 && h > 0, "TileGrid: image size must be positive, got ", w, "x", h);
+    ensure(ts > 0 && ts <= 256, "TileGrid: tile size must be in 1..256, got ", ts);
+    tiles_x = (w + ts - 1) / ts;
+    tiles_y = (h + ts - 1) / ts;
+  }
+  int tile_count() const { return tiles_x * tiles_y; }
+  int tile_x0(int t) const { return (t % tiles_x) * tile_size; }
+  int tile_y0(int t) const { return (t / tiles_x) * tile_size; }
+};
+
+// One visible Gaussian as the rasterizer reads it. The rect is kept as
+// pixel-centre bounds: pixel x is inside iff x_lo < x + 0.5 < x_hi, i.e.
+// x_lo = rect_x0, x_hi = rect_x1 + 1 (exact in float for any image size).
+template <class Scalar>
+struct alignas(sizeof(Scalar) * 16) SplatRecord {
+  Scalar mean_x, mean_y;
+  Scalar conic_a, conic_b, conic_c;
+  Scalar opacity;
+  Scalar color_r, color_g, color_b;
+  Scalar depth;
+  Scalar x_lo, x_hi, y_lo, y_hi;
+  Scalar pad_[2];
+};
+
+template <class Scalar>
+struct BinWorkspace {
+  TileGrid grid;
+  std::vector<std::int32_t> order;             // [V] rank -> Gaussian index
+  std::vector<SplatRecord<Scalar>> records;    // [V] rank order
+  std::vector<std::uint32_t> tile_offsets;     // [tiles + 1]
+  std::vector<std::int32_t> tile_ranks;        // [pairs] ranks, per tile front to back
+  // Timings of the last bin_splats call.
+  double sort_ms = 0, bin_ms = 0;
+
+  std::size_t visible() const { return order.size(); }
+  std::size_t pairs() const { return tile_ranks.size(); }
+
+  // Sort scratch (kept so that frames after the first do not allocate).
+  using Key = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
+  std::vector<Key> keys_, keys_tmp_;
+  std::vector<std::int32_t> idx_tmp_;
+  std::vector<std::uint32_t> cursor_;
+};
+
+namespace detail {
+
+// Order-preserving map from an IEEE float to an unsigned key (negative values
+// flip all bits, positive ones only the sign bit).
+template <class Key, class Scalar>
+inline Key sortable_key(Scalar v) {
+  Key bits;
+  std::memcpy(&bits, &v, sizeof(Key));
+  const Key sign = Key(1) << (8 * sizeof(Key) - 1);
+  return (bits & sign) ? Key(~bits) : Key(bits | sign);
+}
+
+// Stable LSD radix sort of idx by key, 8 bits per pass; passes whose digit is the
+// same for every key are skipped (depths of a scene share their high bits).
+template <class Key>
+void radix_sort_stable(std::vector<Key>& keys, std::vector<std::int32_t>& idx, std::vector<Key>& keys_tmp,
+                       std::vector<std::int32_t>& idx_tmp) {
+  const std::size_t n = keys.size();
+  keys_tmp.resize(n);
+  idx_tmp.resize(n);
+  constexpr int passes = int(sizeof(Key));
+  std::uint32_t hist[passes][256];
+  std::memset(hist, 0, sizeof(hist));
+  for (std::size_t i = 0; i < n; ++i)
+    for (int p = 0; p < passes; ++p) ++hist[p][(keys[i] >> (8 * p)) & 0xFF];
+  for (int p = 0; p < passes; ++p) {
+    const int shift = 8 * p;
+    if (n == 0 || hist[p][(keys[0] >> shift) & 0xFF] == n) continue;  // one bucket: no-op pass
+    std::uint32_t sum = 0;
+    for (int b = 0; b < 256; ++b) {
+      const std::uint32_t c = hist[p][b];
+      hist[p][b] = sum;
+      sum += c;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t dst = hist[p][(keys[i] >> shift) & 0xFF]++;
+      keys_tmp[dst] = keys[i];
+      idx_tmp[dst] = idx[i];
+    }
+    keys.swap(keys_tmp);
+    idx.swap(idx_tmp);
+  }
+}
+
+}  // namespace detail
+
+// Fills ws for an image of width x height pixels and tiles of tile_size pixels.
+// Throws orbitforge::Error when the splat arrays disagree in length or a visible
+// splat has a non-finite field or a rect outside the image.
+template <class Scalar>
+void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int tile_size, BinWorkspace<Scalar>& ws) {
+  using clock = std::chrono::steady_clock;
+  const auto t0 = clock::now();
+  const std::size_t n = s.size();
+  for (const auto* v : {&s.mean_x, &s.mean_y, &s.conic_a, &s.conic_b, &s.conic_c, &s.opacity, &s.color_r,
+                        &s.color_g, &s.color_b, &s.depth})
+    ensure(v->size() == n, "bin_splats: a ProjectedSplats array has ", v->size(), " entries, radius has ", n);
+  for (const auto* v : {&s.rect_x0, &s.rect_y0, &s.rect_x1, &s.rect_y1})
+    ensure(v->size() == n, "bin_splats: a ProjectedSplats rect array has ", v->size(), " entries, radius has ", n);
+  ensure(n < (std::size_t(1) << 31), "bin_splats: too many Gaussians (", n, ")");
+  ws.grid = TileGrid(width, height, tile_size);
+  const TileGrid& g = ws.grid;
+
+  // Visible Gaussians and their sort keys (index order, so the stable sort breaks
+  // depth ties by index).
+  using Key = typename BinWorkspace<Scalar>::Key;
+  ws.order.clear();
+  ws.keys_.clear();
+  for (std::size_t i = 0; i < n; ++i) {
+    if (s.radius[i] <= 0) continue;
+    if (s.rect_x0[i] > s.rect_x1[i] || s.rect_y0[i] > s.rect_y1[i]) continue;
+    ensure(s.rect_x0[i] >= 0 && s.rect_y0[i] >= 0 && s.rect_x1[i] < width && s.rect_y1[i] < height,
+           "bin_splats: Gaussian ", i, " has rect [", s.rect_x0[i], ",", s.rect_x1[i], "]x[", s.rect_y0[i], ",",
+           s.rect_y1[i], "] outside the ", width, "x", height, " image");
+    const Scalar f[] = {s.mean_x[i], s.mean_y[i], s.conic_a[i], s.conic_b[i], s.conic_c[i], s.opacity[i],
+                        s.color_r[i], s.color_g[i], s.color_b[i], s.depth[i]};
+    for (Scalar v : f) ensure(std::isfinite(v), "bin_splats: visible Gaussian ", i, " has a non-finite field");
+    ws.order.push_back(std::int32_t(i));
+    ws.keys_.push_back(detail::sortable_key<Key>(s.depth[i]));
+  }
+  detail::radix_sort_stable(ws.keys_, ws.order, ws.keys_tmp_, ws.idx_tmp_);
+  const auto t1 = clock::now();
+
+  // Pack in rank order and count tile entries.
+  const std::size_t v = ws.order.size();
+  ws.records.resize(v);
+  ws.tile_offsets.assign(std::size_t(g.tile_count()) + 1, 0u);
+  const int ts = g.tile_size;
+  for (std::size_t r = 0; r < v; ++r) {
+    const std::size_t i = std::size_t(ws.order[r]);
+    SplatRecord<Scalar>& rec = ws.records[r];
+    rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
+    rec.conic_a = s.conic_a[i]; rec.conic_b = s.conic_b[i]; rec.conic_c = s.conic_c[i];
+    rec.opacity = s.opacity[i];
+    rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
+    rec.depth = s.depth[i];
+    rec.x_lo = Scalar(s.rect_x0[i]); rec.x_hi = Scalar(s.rect_x1[i] + 1);
+    rec.y_lo = Scalar(s.rect_y0[i]); rec.y_hi = Scalar(s.rect_y1[i] + 1);
+    rec.pad_[0] = rec.pad_[1] = Scalar(0);
+    for (int ty = s.rect_y0[i] / ts; ty <= s.rect_y1[i] / ts; ++ty)
+      for (int tx = s.rect_x0[i] / ts; tx <= s.rect_x1[i] / ts; ++tx) ++ws.tile_offsets[std::size_t(ty) * g.tiles_x + tx + 1];
+  }
+  // Prefix sum, then fill in rank order so each tile's list comes out front to back.
+  std::uint64_t total = 0;
+  for (std::size_t t = 1; t < ws.tile_offsets.size(); ++t) {
+    // The rasterizer counts list positions in Scalar lanes: keep them exact.
+    ensure(ws.tile_offsets[t] < (1u << 24), "bin_splats: a tile lists ", ws.tile_offsets[t], " Gaussians (limit 2^24)");
+    total += ws.tile_offsets[t];
+    ensure(total < (std::uint64_t(1) << 32), "bin_splats: more than 2^32 tile entries");
+    ws.tile_offsets[t] = std::uint32_t(total);
+  }
+  ws.tile_ranks.resize(std::size_t(total));
+  ws.cursor_.assign(ws.tile_offsets.begin(), ws.tile_offsets.end() - 1);
+  for (std::size_t r = 0; r < v; ++r) {
+    const std::size_t i = std::size_t(ws.order[r]);
+    for (int ty = s.rect_y0[i] / ts; ty <= s.rect_y1[i] / ts; ++ty)
+      for (int tx = s.rect_x0[i] / ts; tx <= s.rect_x1[i] / ts; ++tx)
+        ws.tile_ranks[ws.cursor_[std::size_t(ty) * g.tiles_x + tx]++] = std::int32_t(r);
+  }
+  const auto t2 = clock::now();
+  ws.sort_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  ws.bin_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+}
+
+}  // namespace orbitforge

@@ -1,0 +1,240 @@
+#pragma once
+// Per-tile forward rasterization (front-to-back alpha blending), multi-threaded
+// over tiles and SIMD over the pixels of a tile.
+//
+// Rules (shared/DESIGN.md, "Numerical conventions for the renderer"): pixel
+// (x, y) has its centre at (x + 0.5, y + 0.5); for each Gaussian of the pixel's
+// tile in depth order whose rect contains the pixel,
+//   power = -0.5 (a dx^2 + c dy^2) - b dx dy        (skip power > 0)
+//   alpha = min(0.99, opacity exp(power))           (skip alpha < 1/255)
+//   if T (1 - alpha) < 1e-4 the pixel stops and this Gaussian is NOT blended;
+//   else colour += T alpha c, depth += T alpha z, T *= 1 - alpha.
+// Outputs: colour + T background, final T, expected depth (unnormalised), the
+// number of Gaussians blended, and per pixel how many tile-list entries the
+// backward pass must replay (list position of the last blended Gaussian + 1).
+//
+// A tile of ts x ts pixels is cut into "chunks" of B::size consecutive pixels in
+// row-major order (ts = 16 and 16 float lanes: one chunk per row). Lanes past the
+// image border or the tile are dead from the start.
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
+#include "orbitforge/splat/bin.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+struct RasterParams {
+  std::array<Scalar, 3> background{{0, 0, 0}};
+  int threads = 0;        // 0 = default (all hardware threads)
+  bool fast_exp = false;  // polynomial exp (relative error < 5e-5) instead of the exact one
+};
+
+// The blending thresholds, in one place for the forward, backward and reference.
+template <class Scalar>
+struct RasterRules {
+  static constexpr Scalar max_alpha() { return Scalar(0.99); }
+  static constexpr Scalar min_alpha() { return Scalar(1) / Scalar(255); }
+  static constexpr Scalar min_transmittance() { return Scalar(1e-4); }
+};
+
+struct RasterStats {
+  std::uint64_t pairs_evaluated = 0;  // (pixel, Gaussian) pairs whose power was evaluated for a live pixel
+  std::uint64_t contributions = 0;    // pairs blended
+  double ms = 0;
+};
+
+template <class Scalar>
+struct RasterOutput {
+  Image<Scalar> color;                // [H][W][3] sum_i w_i c_i + T background
+  Image<Scalar> transmittance;        // [H][W][1] final T; alpha = 1 - T
+  Image<Scalar> depth;                // [H][W][1] sum_i w_i z_i (divide by alpha to normalise)
+  Image<std::int32_t> count;          // [H][W][1] Gaussians blended
+  std::vector<std::int32_t> replay;   // [H*W] tile-list entries the backward replays
+  RasterStats stats;
+};
+
+// Pixel offsets of the lanes of each chunk of a tile, for one tile size and lane
+// count, plus each chunk's pixel-centre bounding box (for scalar culling).
+template <class Scalar>
+struct TileLanes {
+  int tile_size = 0, lanes = 0, chunks = 0;
+  std::vector<Scalar> ox, oy;                      // [chunks * lanes] centre offsets (x + 0.5)
+  std::vector<Scalar> cx_lo, cx_hi, cy_lo, cy_hi;  // [chunks]
+  std::vector<std::int32_t> pixel;                 // [chunks * lanes] pixel index in the tile, -1 = padding
+
+  void build(int ts, int n_lanes) {
+    if (ts == tile_size && n_lanes == lanes) return;
+    tile_size = ts;
+    lanes = n_lanes;
+    const int pixels = ts * ts;
+    chunks = (pixels + lanes - 1) / lanes;
+    const std::size_t total = std::size_t(chunks) * std::size_t(lanes);
+    ox.assign(total, Scalar(0.5));
+    oy.assign(total, Scalar(1 << 24));  // padding lanes sit far below any image: dead
+    pixel.assign(total, -1);
+    cx_lo.assign(std::size_t(chunks), Scalar(1e30)); cx_hi.assign(std::size_t(chunks), Scalar(-1e30));
+    cy_lo.assign(std::size_t(chunks), Scalar(1e30)); cy_hi.assign(std::size_t(chunks), Scalar(-1e30));
+    for (int p = 0; p < pixels; ++p) {
+      const int k = p / lanes;
+      const Scalar x = Scalar(p % ts) + Scalar(0.5), y = Scalar(p / ts) + Scalar(0.5);
+      ox[std::size_t(p)] = x;
+      oy[std::size_t(p)] = y;
+      pixel[std::size_t(p)] = p;
+      cx_lo[std::size_t(k)] = std::min(cx_lo[std::size_t(k)], x); cx_hi[std::size_t(k)] = std::max(cx_hi[std::size_t(k)], x);
+      cy_lo[std::size_t(k)] = std::min(cy_lo[std::size_t(k)], y); cy_hi[std::size_t(k)] = std::max(cy_hi[std::size_t(k)], y);
+    }
+  }
+};
+
+// Caller-owned scratch for rasterize / rasterize_backward, reused across frames.
+template <class Scalar>
+struct RasterWorkspace {
+  TileLanes<Scalar> lanes;
+  struct alignas(64) WorkerStats { std::uint64_t evaluated = 0, contributions = 0; };
+  std::vector<WorkerStats> worker_stats;
+  // Backward only.
+  std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
+  std::vector<Scalar> pair_grad;                    // [pairs][10]
+};
+
+namespace detail {
+
+template <class Scalar>
+void prepare_raster_output(const TileGrid& g, RasterOutput<Scalar>& out) {
+  auto shape = [&](auto& img, int c) {
+    if (img.width != g.width || img.height != g.height || img.channels != c)
+      img = std::decay_t<decltype(img)>(g.width, g.height, c);
+  };
+  shape(out.color, 3);
+  shape(out.transmittance, 1);
+  shape(out.depth, 1);
+  shape(out.count, 1);
+  out.replay.resize(std::size_t(g.width) * std::size_t(g.height));
+}
+
+template <class B, bool FastExp, class Scalar>
+void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L, const RasterParams<Scalar>& params,
+                    RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out) {
+  using M = simd::mask_t<B>;
+  using Rules = RasterRules<Scalar>;
+  constexpr std::size_t N = B::size;
+  const TileGrid& g = bins.grid;
+  const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
+  const Scalar fx0 = Scalar(tx0), fy0 = Scalar(ty0);
+  const std::int32_t* ranks = bins.tile_ranks.data() + bins.tile_offsets[std::size_t(t)];
+  const int n = int(bins.tile_offsets[std::size_t(t) + 1] - bins.tile_offsets[std::size_t(t)]);
+  const SplatRecord<Scalar>* rec = bins.records.data();
+  const B width(Scalar(g.width)), height(Scalar(g.height));
+  const B zero(Scalar(0)), one(Scalar(1));
+  std::uint64_t evaluated = 0, contributions = 0;
+
+  for (int k = 0; k < L.chunks; ++k) {
+    const Scalar cxl = fx0 + L.cx_lo[std::size_t(k)], cxh = fx0 + L.cx_hi[std::size_t(k)];
+    const Scalar cyl = fy0 + L.cy_lo[std::size_t(k)], cyh = fy0 + L.cy_hi[std::size_t(k)];
+    if (cyl > Scalar(g.height) || cxl > Scalar(g.width)) continue;  // chunk wholly outside the image
+    const B px = B::load_unaligned(L.ox.data() + std::size_t(k) * N) + B(fx0);
+    const B py = B::load_unaligned(L.oy.data() + std::size_t(k) * N) + B(fy0);
+    M active = (px < width) & (py < height);
+    B T = one, cr = zero, cg = zero, cb = zero, dep = zero, cnt = zero, last = zero, ev = zero;
+
+    for (int j = 0; j < n; ++j) {
+      const SplatRecord<Scalar>& G = rec[ranks[j]];
+      // Whole chunk outside the Gaussian's rect: nothing to do (scalar test).
+      if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) continue;
+      const M inside = active & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
+      const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
+      // power = -0.5 (a dx^2 + c dy^2) - b dx dy
+      const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
+      const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
+      const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
+      const B alpha = simd::min(B(Rules::max_alpha()), B(G.opacity) * e);
+      const M valid = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
+      const B T_next = T * (one - alpha);
+      const M blend = valid & (T_next >= B(Rules::min_transmittance()));
+      // A valid pair that would push T below 1e-4 stops the pixel unblended.
+      active = active & ~(valid & (T_next < B(Rules::min_transmittance())));
+      const B w = simd::select(blend, alpha * T, zero);
+      cr = simd::fma(w, B(G.color_r), cr);
+      cg = simd::fma(w, B(G.color_g), cg);
+      cb = simd::fma(w, B(G.color_b), cb);
+      dep = simd::fma(w, B(G.depth), dep);
+      T = simd::select(blend, T_next, T);
+      cnt = cnt + simd::select(blend, one, zero);
+      last = simd::select(blend, B(Scalar(j + 1)), last);
+      ev = ev + simd::select(inside, one, zero);
+      if (!simd::any(active)) break;  // every lane of the chunk is done
+    }
+
+    // Scatter the chunk's lanes to the images (dead lanes are not written).
+    alignas(64) Scalar s_T[N], s_r[N], s_g[N], s_b[N], s_d[N], s_n[N], s_l[N], s_e[N];
+    T.store_unaligned(s_T); cr.store_unaligned(s_r); cg.store_unaligned(s_g); cb.store_unaligned(s_b);
+    dep.store_unaligned(s_d); cnt.store_unaligned(s_n); last.store_unaligned(s_l); ev.store_unaligned(s_e);
+    for (std::size_t l = 0; l < N; ++l) {
+      const int p = L.pixel[std::size_t(k) * N + l];
+      if (p < 0) continue;
+      const int x = tx0 + p % L.tile_size, y = ty0 + p / L.tile_size;
+      if (x >= g.width || y >= g.height) continue;
+      const std::size_t pi = std::size_t(y) * std::size_t(g.width) + std::size_t(x);
+      out.color.data[3 * pi + 0] = s_r[l] + s_T[l] * params.background[0];
+      out.color.data[3 * pi + 1] = s_g[l] + s_T[l] * params.background[1];
+      out.color.data[3 * pi + 2] = s_b[l] + s_T[l] * params.background[2];
+      out.transmittance.data[pi] = s_T[l];
+      out.depth.data[pi] = s_d[l];
+      out.count.data[pi] = std::int32_t(s_n[l]);
+      out.replay[pi] = std::int32_t(s_l[l]);
+      contributions += std::uint64_t(s_n[l]);
+      evaluated += std::uint64_t(s_e[l]);
+    }
+  }
+  evaluated_out += evaluated;
+  contributions_out += contributions;
+}
+
+}  // namespace detail
+
+// Forward rasterization with batch type B (simd::native_batch<Scalar> by
+// default; simd::scalar_batch<Scalar> for the scalar kernel).
+template <class B, class Scalar>
+void rasterize_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params, RasterOutput<Scalar>& out,
+                    RasterWorkspace<Scalar>& ws) {
+  static_assert(std::is_same<typename B::value_type, Scalar>::value, "rasterize_with: batch of the wrong precision");
+  const auto t0 = std::chrono::steady_clock::now();
+  const TileGrid& g = bins.grid;
+  ensure(g.tile_count() > 0, "rasterize: the bins are empty (call bin_splats first)");
+  ensure(g.width < (1 << 23) && g.height < (1 << 23), "rasterize: image too large");
+  detail::prepare_raster_output(g, out);
+  ws.lanes.build(g.tile_size, int(B::size));
+  const int threads = resolve_threads(params.threads);
+  ws.worker_stats.assign(std::size_t(threads), {});
+  auto run = [&](auto fast) {
+    constexpr bool Fast = decltype(fast)::value;
+    parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
+      auto& st = ws.worker_stats[std::size_t(w)];
+      detail::rasterize_tile<B, Fast>(int(t), bins, ws.lanes, params, out, st.evaluated, st.contributions);
+    });
+  };
+  if (params.fast_exp) run(std::true_type{});
+  else run(std::false_type{});
+  out.stats = {};
+  for (const auto& st : ws.worker_stats) {
+    out.stats.pairs_evaluated += st.evaluated;
+    out.stats.contributions += st.contributions;
+  }
+  out.stats.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+template <class Scalar>
+void rasterize(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params, RasterOutput<Scalar>& out,
+               RasterWorkspace<Scalar>& ws) {
+  rasterize_with<simd::native_batch<Scalar>>(bins, params, out, ws);
+}
+
+}  // namespace orbitforge

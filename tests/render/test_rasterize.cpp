@@ -1,0 +1,208 @@
+// Binning + forward rasterization against the plain per-pixel reference.
+#include <catch2/catch.hpp>
+
+#include "orbitforge/splat/bin.hpp"
+#include "orbitforge/splat/rasterize.hpp"
+#include "render/reference_renderer.hpp"
+
+using namespace orbitforge;
+using namespace orbitforge_test;
+
+namespace {
+
+template <class S>
+double tol() { return sizeof(S) == 4 ? 1e-5 : 1e-10; }
+
+template <class S, class B = simd::native_batch<S>>
+RasterOutput<S> render_splats(const ProjectedSplats<S>& s, int w, int h, int tile = 16, int threads = 1,
+                              std::array<S, 3> bg = {{0, 0, 0}}, bool fast_exp = false) {
+  BinWorkspace<S> bins;
+  bin_splats(s, w, h, tile, bins);
+  RasterParams<S> p;
+  p.background = bg;
+  p.threads = threads;
+  p.fast_exp = fast_exp;
+  RasterOutput<S> out;
+  RasterWorkspace<S> ws;
+  rasterize_with<B>(bins, p, out, ws);
+  return out;
+}
+
+template <class S>
+void check_against_reference(const ProjectedSplats<S>& s, int w, int h, std::array<S, 3> bg, double tolerance,
+                             int tile = 16, int threads = 1) {
+  const auto ref = reference_rasterize(s, w, h, bg);
+  const auto out = render_splats(s, w, h, tile, threads, bg);
+  CHECK(max_abs_diff(out.color, ref.color) <= tolerance);
+  CHECK(max_abs_diff(out.transmittance, ref.transmittance) <= tolerance);
+  // Depth is a sum of w z with z up to 20: compare relative to that scale.
+  CHECK(max_abs_diff(out.depth, ref.depth) <= tolerance * 20);
+  CHECK(max_abs_diff(out.count, ref.count) == 0);
+  std::uint64_t n = 0;
+  for (auto c : ref.count.data) n += std::uint64_t(c);
+  CHECK(out.stats.contributions == n);
+  CHECK(out.stats.pairs_evaluated >= out.stats.contributions);
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("rasterize matches the reference in the same precision", "[render]", float, double) {
+  using S = TestType;
+  const std::array<S, 3> bg{{S(0.2), S(0.5), S(0.9)}};
+  struct Case { int w, h, n; std::uint32_t seed; };
+  for (const Case c : {Case{64, 48, 300, 1}, Case{17, 9, 40, 2}, Case{1, 1, 20, 3}, Case{1000, 3, 200, 4},
+                       Case{3, 200, 100, 5}, Case{33, 31, 2000, 6}}) {
+    INFO("case " << c.w << "x" << c.h << " n=" << c.n);
+    auto s = random_splats<S>(std::size_t(c.n), c.w, c.h, c.seed);
+    check_against_reference(s, c.w, c.h, bg, tol<S>());
+  }
+}
+
+TEST_CASE("float rasterizer matches the double reference away from thresholds", "[render]") {
+  auto sd = random_splats<double>(400, 70, 50, 11);
+  clear_thresholds(sd, 70, 50, 1e-3);
+  REQUIRE(threshold_violators(sd, 70, 50, 1e-3).empty());
+  ProjectedSplats<float> sf;
+  sf.resize(sd.size());
+  for (std::size_t i = 0; i < sd.size(); ++i) {
+    sf.mean_x[i] = float(sd.mean_x[i]); sf.mean_y[i] = float(sd.mean_y[i]);
+    sf.conic_a[i] = float(sd.conic_a[i]); sf.conic_b[i] = float(sd.conic_b[i]); sf.conic_c[i] = float(sd.conic_c[i]);
+    sf.opacity[i] = float(sd.opacity[i]);
+    sf.color_r[i] = float(sd.color_r[i]); sf.color_g[i] = float(sd.color_g[i]); sf.color_b[i] = float(sd.color_b[i]);
+    sf.depth[i] = float(sd.depth[i]);
+    sf.radius[i] = sd.radius[i];
+    sf.rect_x0[i] = sd.rect_x0[i]; sf.rect_x1[i] = sd.rect_x1[i]; sf.rect_y0[i] = sd.rect_y0[i]; sf.rect_y1[i] = sd.rect_y1[i];
+  }
+  // Re-check in float inputs (rounding the inputs moves pairs slightly).
+  clear_thresholds(sf, 70, 50, 1e-3);
+  for (std::size_t i = 0; i < sd.size(); ++i) sd.opacity[i] = double(sf.opacity[i]);
+  const auto ref = reference_rasterize(sd, 70, 50, std::array<double, 3>{{0.1, 0.2, 0.3}});
+  const auto out = render_splats(sf, 70, 50, 16, 1, std::array<float, 3>{{0.1f, 0.2f, 0.3f}});
+  double m = 0;
+  for (std::size_t i = 0; i < ref.color.data.size(); ++i) m = std::max(m, std::abs(ref.color.data[i] - double(out.color.data[i])));
+  CHECK(m <= 1e-5);
+  for (std::size_t i = 0; i < ref.count.data.size(); ++i) REQUIRE(ref.count.data[i] == out.count.data[i]);
+}
+
+TEMPLATE_TEST_CASE("image does not depend on tile size or thread count", "[render]", float, double) {
+  using S = TestType;
+  auto s = random_splats<S>(800, 90, 70, 21);
+  const std::array<S, 3> bg{{S(0.3), S(0.3), S(0.3)}};
+  const auto base = render_splats(s, 90, 70, 16, 1, bg);
+  for (int tile : {1, 5, 8, 16, 32, 64})
+    for (int threads : {1, 2, 3}) {
+      INFO("tile " << tile << " threads " << threads);
+      const auto o = render_splats(s, 90, 70, tile, threads, bg);
+      // Identical arithmetic per pixel whatever the tiling: bitwise equal.
+      CHECK(max_abs_diff(o.color, base.color) == 0);
+      CHECK(max_abs_diff(o.depth, base.depth) == 0);
+      CHECK(max_abs_diff(o.count, base.count) == 0);
+      CHECK(o.stats.contributions == base.stats.contributions);
+    }
+}
+
+TEMPLATE_TEST_CASE("scalar kernel matches the SIMD kernel", "[render]", float, double) {
+  using S = TestType;
+  auto s = random_splats<S>(500, 45, 37, 31);
+  const std::array<S, 3> bg{{S(0.1), S(0), S(1)}};
+  const auto v = render_splats<S>(s, 45, 37, 16, 2, bg);
+  const auto c = render_splats<S, simd::scalar_batch<S>>(s, 45, 37, 16, 2, bg);
+  CHECK(max_abs_diff(v.color, c.color) <= tol<S>());
+  CHECK(max_abs_diff(v.count, c.count) == 0);
+}
+
+TEMPLATE_TEST_CASE("hard cases", "[render]", float, double) {
+  using S = TestType;
+  const std::array<S, 3> bg{{S(0.25), S(0.5), S(0.75)}};
+  SECTION("empty scene shows the background") {
+    ProjectedSplats<S> s;
+    const auto out = render_splats(s, 20, 10, 16, 1, bg);
+    for (int y = 0; y < 10; ++y)
+      for (int x = 0; x < 20; ++x) {
+        CHECK(out.color(x, y, 0) == bg[0]);
+        CHECK(out.color(x, y, 2) == bg[2]);
+        CHECK(out.transmittance(x, y) == S(1));
+        CHECK(out.count(x, y) == 0);
+      }
+  }
+  SECTION("a Gaussian covering the whole image, opacity 1: alpha clamps at 0.99") {
+    ProjectedSplats<S> s;
+    s.resize(1);
+    s.mean_x[0] = 20; s.mean_y[0] = 10;
+    s.conic_a[0] = S(1e-6); s.conic_b[0] = 0; s.conic_c[0] = S(1e-6);
+    s.opacity[0] = 1; s.color_r[0] = 1; s.color_g[0] = 0; s.color_b[0] = 0; s.depth[0] = 3;
+    set_rect_from_conic(s, 0, 40, 20);
+    REQUIRE(s.rect_x0[0] == 0);
+    REQUIRE(s.rect_x1[0] == 39);
+    const auto out = render_splats(s, 40, 20, 16, 2, bg);
+    for (int y = 0; y < 20; ++y)
+      for (int x = 0; x < 40; ++x) {
+        CHECK(out.transmittance(x, y) == Approx(0.01).epsilon(1e-5));
+        CHECK(out.color(x, y, 0) == Approx(0.99 + 0.01 * 0.25).epsilon(1e-5));
+      }
+    check_against_reference(s, 40, 20, bg, tol<S>());
+  }
+  SECTION("opacity 0 and Gaussians far below one pixel") {
+    auto s = random_splats<S>(200, 30, 30, 41);
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      if (i % 2 == 0) s.opacity[i] = 0;
+      else { s.conic_a[i] = S(1e6); s.conic_b[i] = 0; s.conic_c[i] = S(1e6); set_rect_from_conic(s, i, 30, 30); }
+    }
+    check_against_reference(s, 30, 30, bg, tol<S>());
+  }
+  SECTION("flattened Gaussians (huge conic along one axis)") {
+    auto s = random_splats<S>(150, 40, 30, 51);
+    for (std::size_t i = 0; i < s.size(); ++i) { s.conic_a[i] = S(400); s.conic_b[i] = 0; }
+    check_against_reference(s, 40, 30, bg, tol<S>());
+  }
+  SECTION("dense opaque stack stops early (1e-4 rule)") {
+    RandomSplatOptions o;
+    o.opacity_min = 0.9;
+    o.sigma_min = 20; o.sigma_max = 40;
+    auto s = random_splats<S>(300, 32, 32, 61, o);
+    check_against_reference(s, 32, 32, bg, tol<S>());
+    const auto out = render_splats(s, 32, 32);
+    CHECK(out.stats.pairs_evaluated < 300u * 32u * 32u / 2u);
+  }
+  SECTION("equal depths are blended in index order") {
+    ProjectedSplats<S> s;
+    s.resize(2);
+    for (std::size_t i = 0; i < 2; ++i) {
+      s.mean_x[i] = 4; s.mean_y[i] = 4; s.conic_a[i] = S(0.1); s.conic_b[i] = 0; s.conic_c[i] = S(0.1);
+      s.opacity[i] = S(0.5); s.depth[i] = 2;
+      set_rect_from_conic(s, i, 8, 8);
+    }
+    s.color_r[0] = 1; s.color_g[0] = 0; s.color_b[0] = 0;
+    s.color_r[1] = 0; s.color_g[1] = 1; s.color_b[1] = 0;
+    const auto out = render_splats(s, 8, 8);
+    CHECK(out.color(3, 3, 0) > out.color(3, 3, 1));  // Gaussian 0 is in front
+    check_against_reference(s, 8, 8, bg, tol<S>());
+  }
+}
+
+TEST_CASE("bin_splats rejects malformed input", "[render]") {
+  BinWorkspace<float> bins;
+  ProjectedSplats<float> s = random_splats<float>(10, 16, 16, 71);
+  s.rect_x1[3] = 40;
+  s.radius[3] = 5;
+  CHECK_THROWS_AS(bin_splats(s, 16, 16, 16, bins), Error);
+  s = random_splats<float>(10, 16, 16, 71);
+  s.depth.pop_back();
+  CHECK_THROWS_AS(bin_splats(s, 16, 16, 16, bins), Error);
+  s = random_splats<float>(10, 16, 16, 71);
+  for (std::size_t i = 0; i < s.size(); ++i)
+    if (s.radius[i] > 0) { s.mean_x[i] = std::nanf(""); break; }
+  CHECK_THROWS_AS(bin_splats(s, 16, 16, 16, bins), Error);
+  CHECK_THROWS_AS(bin_splats(s, 0, 16, 16, bins), Error);
+}
+
+TEST_CASE("fast exp stays close to the exact path", "[render]") {
+  auto s = random_splats<float>(600, 64, 64, 81);
+  const auto a = render_splats<float>(s, 64, 64, 16, 1, {{0, 0, 0}}, false);
+  const auto b = render_splats<float>(s, 64, 64, 16, 1, {{0, 0, 0}}, true);
+  // Threshold decisions can flip, so compare the mean error rather than the max.
+  double sum = 0;
+  for (std::size_t i = 0; i < a.color.data.size(); ++i) sum += std::abs(double(a.color.data[i]) - b.color.data[i]);
+  CHECK(sum / double(a.color.data.size()) < 1e-3);
+  CHECK(sum > 0);  // it is a different path
+}
