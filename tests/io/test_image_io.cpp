@@ -1,0 +1,257 @@
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <string>
+
+#include <unistd.h>
+
+#include "orbitforge/io/image_io.hpp"
+#include "support/data.hpp"
+
+using namespace orbitforge;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path temp_dir() {
+  const fs::path d = fs::temp_directory_path() / ("orbitforge_test_image_io_" + std::to_string(::getpid()));
+  fs::create_directories(d);
+  return d;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream os;
+  os << in.rdbuf();
+  return os.str();
+}
+
+void spit(const fs::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary);
+  out << bytes;
+}
+
+float le_float(const std::string& bytes, std::size_t offset) {
+  const auto* q = reinterpret_cast<const unsigned char*>(bytes.data() + offset);
+  const std::uint32_t u =
+      std::uint32_t(q[0]) | std::uint32_t(q[1]) << 8 | std::uint32_t(q[2]) << 16 | std::uint32_t(q[3]) << 24;
+  float v;
+  std::memcpy(&v, &u, 4);
+  return v;
+}
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("PNG round trip of 8-bit values", "[io][image]", float, double) {
+  using T = TestType;
+  std::mt19937 rng(1);
+  Image<T> img(13, 7, 3);
+  for (auto& v : img.data) v = T(rng() % 256) / T(255);
+  const auto path = (temp_dir() / "rt.png").string();
+  write_png(path, img);
+  const auto back = read_image<T>(path);
+  REQUIRE(back.same_shape(img));
+  REQUIRE(back.data == img.data);
+
+  // Clamping and rounding on write.
+  Image<T> odd(3, 1, 3);
+  odd.data = {T(-0.5), T(2), std::numeric_limits<T>::quiet_NaN(), T(0.5), T(1.0 / 255 * 0.49), T(1.0 / 255 * 0.51),
+              T(1), T(0), T(0.999)};
+  write_image((temp_dir() / "odd.png").string(), odd);
+  const auto o = read_image<T>((temp_dir() / "odd.png").string());
+  const int expected[9] = {0, 255, 0, 128, 0, 1, 255, 0, 255};
+  for (int i = 0; i < 9; ++i) REQUIRE(o.data[std::size_t(i)] == T(expected[i]) / T(255));
+}
+
+TEST_CASE("image readers convert grey and RGBA to RGB", "[io][image]") {
+  Image<float> grey(4, 3, 1), rgba(4, 3, 4);
+  for (std::size_t i = 0; i < grey.data.size(); ++i) grey.data[i] = float(i * 20) / 255.0f;
+  for (std::size_t i = 0; i < rgba.data.size(); ++i) rgba.data[i] = float(i * 5 % 256) / 255.0f;
+  write_png((temp_dir() / "grey.png").string(), grey);
+  write_png((temp_dir() / "rgba.png").string(), rgba);
+  const auto g = read_image<float>((temp_dir() / "grey.png").string());
+  const auto r = read_image<float>((temp_dir() / "rgba.png").string());
+  REQUIRE(g.channels == 3);
+  REQUIRE(r.channels == 3);
+  for (int y = 0; y < 3; ++y)
+    for (int x = 0; x < 4; ++x)
+      for (int c = 0; c < 3; ++c) {
+        REQUIRE(g(x, y, c) == grey(x, y, 0));
+        REQUIRE(r(x, y, c) == rgba(x, y, c));
+      }
+}
+
+TEMPLATE_TEST_CASE("PFM round trip is bit-exact and stores the bottom row first", "[io][image][pfm]", float,
+                   double) {
+  using T = TestType;
+  std::mt19937 rng(2);
+  std::normal_distribution<float> nd(0.0f, 100.0f);
+  Image<T> img(5, 4, 3);
+  for (auto& v : img.data) v = T(nd(rng));
+  img.data[0] = T(std::numeric_limits<float>::denorm_min());
+  img.data[1] = T(-0.0f);
+  img.data[2] = T(std::numeric_limits<float>::infinity());
+  img.data[3] = T(1e30f);
+  const auto path = (temp_dir() / "rt.pfm").string();
+  write_pfm(path, img);
+  const auto back = read_pfm<T>(path);
+  REQUIRE(back.same_shape(img));
+  for (std::size_t i = 0; i < img.data.size(); ++i) {
+    const float a = float(img.data[i]), b = float(back.data[i]);
+    REQUIRE(std::memcmp(&a, &b, 4) == 0);
+  }
+
+  // The raw bytes, as the format defines them.
+  const std::string raw = slurp(path);
+  const std::string header = "PF\n5 4\n-1.0\n";
+  REQUIRE(raw.compare(0, header.size(), header) == 0);
+  REQUIRE(raw.size() == header.size() + 5 * 4 * 3 * 4);
+  for (int row = 0; row < 4; ++row)  // stored row 0 = image row 3 (bottom)
+    for (int x = 0; x < 5; ++x)
+      for (int c = 0; c < 3; ++c) {
+        const float stored = le_float(raw, header.size() + (std::size_t(row) * 5 * 3 + std::size_t(x) * 3 + c) * 4);
+        const float expect = float(img(x, 3 - row, c));
+        REQUIRE(std::memcmp(&stored, &expect, 4) == 0);
+      }
+
+  // One channel: "Pf".
+  Image<T> grey(2, 2, 1);
+  grey.data = {T(1), T(2), T(3), T(4)};
+  write_image((temp_dir() / "g.pfm").string(), grey);
+  const std::string graw = slurp(temp_dir() / "g.pfm");
+  REQUIRE(graw.compare(0, 11, "Pf\n2 2\n-1.0") == 0);
+  REQUIRE(le_float(graw, 12) == 3.0f);
+  REQUIRE(le_float(graw, 24) == 2.0f);
+  REQUIRE(read_pfm<T>((temp_dir() / "g.pfm").string()).data == grey.data);
+  // read_image gives RGB for any input.
+  REQUIRE(read_image<T>((temp_dir() / "g.pfm").string()).channels == 3);
+}
+
+TEST_CASE("PFM reader: big endian, whitespace, errors", "[io][image][pfm]") {
+  // Hand-made big-endian (positive scale) 2x1 grey file with CRLF-free spacing.
+  std::string be = "Pf\n2 1\n1.0\n";
+  const float vals[2] = {1.5f, -2.25f};
+  for (float v : vals) {
+    unsigned char b[4];
+    std::memcpy(b, &v, 4);
+    for (int i = 3; i >= 0; --i) be.push_back(char(b[i]));
+  }
+  const auto img = decode_pfm<float>(be, "be.pfm");
+  REQUIRE(img.width == 2);
+  REQUIRE(img.height == 1);
+  REQUIRE(img.data[0] == 1.5f);
+  REQUIRE(img.data[1] == -2.25f);
+
+  auto has = [](const std::string& msg, const std::string& part) {
+    INFO("message: " << msg);
+    REQUIRE(msg.find("x.pfm") != std::string::npos);
+    REQUIRE(msg.find(part) != std::string::npos);
+  };
+  has(error_of([&] { decode_pfm<float>(be.substr(0, be.size() - 1), "x.pfm"); }), "truncated");
+  has(error_of([&] { decode_pfm<float>("P6\n2 1\n255\n", "x.pfm"); }), "not a PFM");
+  has(error_of([&] { decode_pfm<float>("PF\n2 -1\n-1.0\n", "x.pfm"); }), "height");
+  has(error_of([&] { decode_pfm<float>("PF\n2 1\n0\n", "x.pfm"); }), "scale");
+  has(error_of([&] { decode_pfm<float>("PF\n2 1\n", "x.pfm"); }), "missing scale");
+  has(error_of([&] { decode_pfm<float>("PF\n99999999 99999999\n-1\n", "x.pfm"); }), "width");
+  has(error_of([&] { decode_pfm<float>("PF\n9999 9999\n-1\n", "x.pfm"); }), "truncated");
+  has(error_of([&] { decode_image<float>("garbage bytes", "x.pfm"); }), "cannot decode");
+  has(error_of([&] { read_image<float>((temp_dir() / "x.pfm" / "missing").string()); }), "does not exist");
+  has(error_of([&] { write_image((temp_dir() / "x.pfm.bmp").string(), Image<float>(2, 2, 3)); }), "unsupported");
+  has(error_of([&] { write_pfm((temp_dir() / "x.pfm").string(), Image<float>(2, 2, 2)); }), "1 or 3 channels");
+}
+
+TEST_CASE("JPEG read of a recorded frame", "[io][image][shared]") {
+  const std::string rel = "v3d/doll/images/001.jpg";
+  if (!orbitforge_test::have_shared_data(rel)) return;
+  const auto img = read_image<float>(orbitforge_test::shared_path(rel));
+  REQUIRE(img.width == 512);
+  REQUIRE(img.height == 512);
+  REQUIRE(img.channels == 3);
+  double mean = 0, mean2 = 0;
+  for (float v : img.data) {
+    REQUIRE((v >= 0.0f && v <= 1.0f));
+    mean += v;
+    mean2 += double(v) * v;
+  }
+  mean /= double(img.data.size());
+  mean2 /= double(img.data.size());
+  REQUIRE((mean > 0.05 && mean < 0.95));
+  REQUIRE(std::sqrt(mean2 - mean * mean) > 0.02);  // a picture, not a flat field
+}
+
+TEMPLATE_TEST_CASE("resize_image", "[io][image][resize]", float, double) {
+  using T = TestType;
+  const T tol = std::is_same<T, float>::value ? T(1e-5) : T(1e-12);
+
+  SECTION("area: integer shrink is the box mean") {
+    Image<T> in(4, 4, 1);
+    for (int y = 0; y < 4; ++y)
+      for (int x = 0; x < 4; ++x) in(x, y) = T(x + 10 * y);
+    const auto out = resize_image(in, 2, 2, ResizeFilter::area);
+    REQUIRE(out(0, 0) == Approx((0 + 1 + 10 + 11) / 4.0).margin(tol));
+    REQUIRE(out(1, 1) == Approx((22 + 23 + 32 + 33) / 4.0).margin(tol));
+  }
+  SECTION("area: fractional footprints keep the mean") {
+    std::mt19937 rng(3);
+    Image<T> in(7, 5, 3);
+    for (auto& v : in.data) v = T(rng() % 1000) / T(1000);
+    const auto out = resize_image(in, 3, 2, ResizeFilter::area);
+    REQUIRE(out.width == 3);
+    REQUIRE(out.height == 2);
+    for (int c = 0; c < 3; ++c) {
+      double a = 0, b = 0;
+      for (int y = 0; y < 5; ++y)
+        for (int x = 0; x < 7; ++x) a += double(in(x, y, c));
+      for (int y = 0; y < 2; ++y)
+        for (int x = 0; x < 3; ++x) b += double(out(x, y, c));
+      REQUIRE(b / 6 == Approx(a / 35).margin(tol));
+    }
+    // Output pixel (0,0) covers x in [0, 7/3), y in [0, 2.5): weights by overlap.
+    double expect = 0;
+    const double wx[3] = {1, 1, 1.0 / 3}, wy[3] = {1, 1, 0.5};
+    for (int y = 0; y < 3; ++y)
+      for (int x = 0; x < 3; ++x) expect += wx[x] * wy[y] * double(in(x, y, 1));
+    expect /= (7.0 / 3) * 2.5;
+    REQUIRE(double(out(0, 0, 1)) == Approx(expect).margin(tol));
+  }
+  SECTION("constant images stay constant, both filters, up and down") {
+    Image<T> in(9, 6, 3, T(0.375));
+    for (auto f : {ResizeFilter::area, ResizeFilter::bilinear})
+      for (auto wh : {std::pair<int, int>{4, 5}, {20, 13}, {1, 1}, {512, 3}}) {
+        const auto out = resize_image(in, wh.first, wh.second, f);
+        for (T v : out.data) REQUIRE(v == Approx(T(0.375)).margin(tol));
+      }
+  }
+  SECTION("bilinear reproduces a linear ramp inside the image") {
+    Image<T> in(8, 8, 1);
+    for (int y = 0; y < 8; ++y)
+      for (int x = 0; x < 8; ++x) in(x, y) = T(2 * x + 3 * y);
+    const auto out = resize_image(in, 16, 16, ResizeFilter::bilinear);
+    // Output centre (X + 0.5) / 2 - 0.5 in input pixels; away from the clamped border.
+    for (int y = 1; y < 15; ++y)
+      for (int x = 1; x < 15; ++x) {
+        const double ix = (x + 0.5) / 2 - 0.5, iy = (y + 0.5) / 2 - 0.5;
+        REQUIRE(double(out(x, y)) == Approx(2 * ix + 3 * iy).margin(tol * 10));
+      }
+  }
+  SECTION("bad sizes") {
+    REQUIRE_THROWS_AS(resize_image(Image<T>(2, 2, 3), 0, 2), Error);
+    REQUIRE_THROWS_AS(resize_image(Image<T>(), 2, 2), Error);
+  }
+}
