@@ -1,0 +1,385 @@
+#pragma once
+// Photometric training losses on interleaved images (core/image.hpp), values in [0, 1]:
+//
+//   l1_loss        mean |pred - target| over all pixels and channels
+//   ssim           structural similarity, mean over pixels and channels
+//   combined_loss  (1 - lambda) L1 + lambda (1 - SSIM), lambda = 0.2 (3DGS)
+//
+// each with its vector-Jacobian product with respect to `pred` (the rendered image);
+// `target` is a constant.
+//
+// SSIM follows the usual PyTorch 3DGS implementation exactly: an 11x11 Gaussian window
+// (sigma 1.5, the outer product of a normalised 1D Gaussian, so it sums to 1),
+// C1 = 0.01^2, C2 = 0.03^2, each channel separately, and conv2d with padding = 5:
+// pixels outside the image count as zero in every windowed sum (of x, y, x^2, y^2, xy)
+// and the window weights are NOT renormalised near the border. So SSIM near the border
+// differs from a "valid-window" SSIM; this is deliberate, to match the published losses.
+//
+//   mu_x = G*x, mu_y = G*y, s_xx = G*(x^2) - mu_x^2, s_yy = G*(y^2) - mu_y^2,
+//   s_xy = G*(xy) - mu_x mu_y,
+//   ssim = (2 mu_x mu_y + C1)(2 s_xy + C2) / ((mu_x^2 + mu_y^2 + C1)(s_xx + s_yy + C2)).
+//
+// The 2D filter runs as two 1D passes (rows, then columns), which is exact for a
+// separable window under zero padding. The backward pass filters three per-pixel
+// derivative maps with the same window: zero-padded convolution with a symmetric
+// window is its own adjoint. All work is split over rows with parallel_for; partial
+// sums are kept per row and added in row order, so results do not depend on the thread
+// count. A caller-owned SsimWorkspace holds every buffer: after the first call at a
+// given size nothing allocates.
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+
+namespace orbitforge {
+
+struct SsimParams {
+  int window = 11;      // window side in pixels (odd)
+  double sigma = 1.5;   // Gaussian standard deviation in pixels
+  double c1 = 0.01 * 0.01;
+  double c2 = 0.03 * 0.03;
+};
+
+// Buffers reused across calls. One workspace serves one forward/backward pair at a
+// time; ssim_vjp reads what the preceding ssim call on the same images left here.
+template <class Scalar>
+struct SsimWorkspace {
+  int width = 0, height = 0, channels = 0;  // shape of the last forward pass
+  bool forward_done = false;
+  SsimParams params;                        // params of the last forward pass
+  std::vector<Scalar> window;               // [window] normalised 1D weights
+  std::vector<Scalar> horizontal;           // [H][W][5C] row-filtered stats (backward: [H][W][3C])
+  std::vector<Scalar> dmaps;                // [H][W][3C] d mean-SSIM / d(mu_x, G*x^2, G*xy)
+  std::vector<std::vector<Scalar>> rows;    // [worker][W * 5C] scratch rows
+  std::vector<double> row_sums;             // [H] per-row partial sums
+};
+
+// The components of combined_loss, for progress reports.
+template <class Scalar>
+struct LossTerms {
+  Scalar total = 0;  // (1 - lambda) l1 + lambda (1 - ssim)
+  Scalar l1 = 0;
+  Scalar ssim = 0;
+};
+
+namespace losses_detail {
+
+inline void check_pair(const char* who, int pw, int ph, int pc, int tw, int th, int tc) {
+  ensure(pw == tw && ph == th && pc == tc, who, ": prediction is ", pw, "x", ph, "x", pc,
+         " but target is ", tw, "x", th, "x", tc);
+  ensure(pw > 0 && ph > 0 && pc > 0, who, ": empty image ", pw, "x", ph, "x", pc);
+}
+
+template <class Scalar>
+void check_images(const char* who, const Image<Scalar>& pred, const Image<Scalar>& target) {
+  check_pair(who, pred.width, pred.height, pred.channels, target.width, target.height, target.channels);
+  ensure(pred.data.size() == pred.pixel_count() * std::size_t(pred.channels) &&
+             target.data.size() == target.pixel_count() * std::size_t(target.channels),
+         who, ": image data size does not match its width x height x channels");
+}
+
+// Normalised 1D Gaussian of `size` taps centred on size/2.
+template <class Scalar>
+void gaussian_window(const SsimParams& p, std::vector<Scalar>& w) {
+  ensure(p.window >= 1 && p.window % 2 == 1, "ssim: window size must be odd and positive, got ", p.window);
+  ensure(p.sigma > 0 && std::isfinite(p.sigma), "ssim: sigma must be positive, got ", p.sigma);
+  w.resize(std::size_t(p.window));
+  const int r = p.window / 2;
+  double sum = 0;
+  std::vector<double> g(std::size_t(p.window));
+  for (int k = 0; k < p.window; ++k) {
+    const double d = k - r;
+    g[std::size_t(k)] = std::exp(-d * d / (2 * p.sigma * p.sigma));
+    sum += g[std::size_t(k)];
+  }
+  for (int k = 0; k < p.window; ++k) w[std::size_t(k)] = Scalar(g[std::size_t(k)] / sum);
+}
+
+// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width);
+// rows hold `stride` values per pixel. Long contiguous multiply-adds, one per tap
+// pair (the window is symmetric), which compilers vectorise well.
+template <class Scalar>
+void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int stride,
+                const Scalar* w, int r) {
+  const std::ptrdiff_t n = std::ptrdiff_t(width) * stride;
+  const Scalar wc = w[r];
+  for (std::ptrdiff_t i = 0; i < n; ++i) out[i] = wc * in[i];
+  for (int d = 1; d <= r && d < width; ++d) {
+    const std::ptrdiff_t off = std::ptrdiff_t(d) * stride;
+    const Scalar wd = w[r + d];  // == w[r - d]
+    // Interior: both taps inside; ends: only one of them.
+    for (std::ptrdiff_t i = off; i < n - off; ++i) out[i] += wd * (in[i + off] + in[i - off]);
+    for (std::ptrdiff_t i = 0; i < std::min(off, n - off); ++i) out[i] += wd * in[i + off];
+    for (std::ptrdiff_t i = std::max(off, n - off); i < n; ++i) out[i] += wd * in[i - off];
+  }
+}
+
+// out = sum_d w[r + d] plane[y + d] over the rows that exist (zero padding).
+template <class Scalar>
+void filter_column(const Scalar* plane, Scalar* __restrict out, int y, int height, std::size_t row_len,
+                   const Scalar* w, int r) {
+  const Scalar* __restrict centre = plane + std::size_t(y) * row_len;
+  const Scalar wc = w[r];
+  for (std::size_t i = 0; i < row_len; ++i) out[i] = wc * centre[i];
+  for (int d = 1; d <= r; ++d) {
+    const bool up = y - d >= 0, down = y + d < height;
+    const Scalar wd = w[r + d];
+    if (up && down) {
+      const Scalar* __restrict a = plane + std::size_t(y - d) * row_len;
+      const Scalar* __restrict b = plane + std::size_t(y + d) * row_len;
+      for (std::size_t i = 0; i < row_len; ++i) out[i] += wd * (a[i] + b[i]);
+    } else if (up || down) {
+      const Scalar* __restrict a = plane + std::size_t(up ? y - d : y + d) * row_len;
+      for (std::size_t i = 0; i < row_len; ++i) out[i] += wd * a[i];
+    }
+  }
+}
+
+template <class Scalar>
+void prepare_rows(SsimWorkspace<Scalar>& ws, int workers, std::size_t len) {
+  if (ws.rows.size() < std::size_t(workers)) ws.rows.resize(std::size_t(workers));
+  for (auto& r : ws.rows)
+    if (r.size() < len) r.resize(len);
+}
+
+inline double sum_in_order(const std::vector<double>& v, std::size_t n) {
+  double s = 0;
+  for (std::size_t i = 0; i < n; ++i) s += v[i];
+  return s;
+}
+
+}  // namespace losses_detail
+
+// ---------------------------------------------------------------- L1
+
+// inputs: pred, target [H][W][C]. Returns mean |pred - target|.
+template <class Scalar>
+Scalar l1_loss(const Image<Scalar>& pred, const Image<Scalar>& target) {
+  losses_detail::check_images("l1_loss", pred, target);
+  const std::size_t n = pred.data.size();
+  const Scalar* a = pred.data.data();
+  const Scalar* b = target.data.data();
+  // Sum in blocks of Scalar, blocks added in double: fast and accurate enough for float.
+  double total = 0;
+  constexpr std::size_t block = 4096;
+  for (std::size_t s = 0; s < n; s += block) {
+    const std::size_t e = std::min(n, s + block);
+    Scalar part = 0;
+    for (std::size_t i = s; i < e; ++i) part += std::abs(a[i] - b[i]);
+    total += double(part);
+  }
+  return Scalar(total / double(n));
+}
+
+// inputs:      pred, target [H][W][C]
+// grad output: v_l1 (scalar)
+// grad input:  v_pred [H][W][C] (resized; overwritten, or added to when accumulate)
+// d|p - t|/dp is taken as sign(p - t), and 0 where p == t.
+template <class Scalar>
+void l1_loss_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_l1, Image<Scalar>& v_pred,
+                 bool accumulate = false) {
+  losses_detail::check_images("l1_loss_vjp", pred, target);
+  if (accumulate) {
+    ensure(v_pred.same_shape(pred) && v_pred.data.size() == pred.data.size(),
+           "l1_loss_vjp: accumulate into a gradient image of a different shape");
+  } else if (!v_pred.same_shape(pred) || v_pred.data.size() != pred.data.size()) {
+    v_pred = Image<Scalar>(pred.width, pred.height, pred.channels);
+  }
+  const std::size_t n = pred.data.size();
+  const Scalar g = v_l1 / Scalar(n);
+  const Scalar* a = pred.data.data();
+  const Scalar* b = target.data.data();
+  Scalar* v = v_pred.data.data();
+  for (std::size_t i = 0; i < n; ++i) {
+    const Scalar d = a[i] - b[i];
+    const Scalar s = d > 0 ? g : (d < 0 ? -g : Scalar(0));
+    v[i] = accumulate ? v[i] + s : s;
+  }
+}
+
+// ---------------------------------------------------------------- SSIM
+
+// inputs: pred, target [H][W][C] (values nominally in [0, 1]; C1, C2 assume range 1).
+// Returns mean SSIM over pixels and channels. Leaves in `ws` what ssim_vjp needs.
+// threads: 0 = default (see parallel_for).
+template <class Scalar>
+Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
+            const SsimParams& params = {}, int threads = 0) {
+  using namespace losses_detail;
+  check_images("ssim", pred, target);
+  const int W = pred.width, H = pred.height, C = pred.channels;
+  const int S5 = 5 * C, S3 = 3 * C;
+  const std::size_t row5 = std::size_t(W) * S5;
+  threads = resolve_threads(threads);
+
+  gaussian_window<Scalar>(params, ws.window);
+  ws.horizontal.resize(row5 * std::size_t(H));
+  ws.dmaps.resize(std::size_t(W) * S3 * std::size_t(H));
+  ws.row_sums.resize(std::size_t(H));
+  prepare_rows(ws, threads, row5);
+  ws.width = W;
+  ws.height = H;
+  ws.channels = C;
+  ws.params = params;
+  ws.forward_done = false;
+
+  const Scalar* w = ws.window.data();
+  const int r = params.window / 2;
+  const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
+  const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
+
+  // Pass 1: per row, the five per-pixel products, filtered along the row.
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
+    Scalar* prod = ws.rows[std::size_t(worker)].data();
+    const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
+    const Scalar* t = target.data.data() + y * std::size_t(W) * C;
+    for (int px = 0; px < W; ++px) {
+      Scalar* o = prod + std::size_t(px) * S5;
+      const Scalar* xp = x + std::size_t(px) * C;
+      const Scalar* tp = t + std::size_t(px) * C;
+      for (int c = 0; c < C; ++c) {
+        o[c] = xp[c];
+        o[C + c] = tp[c];
+        o[2 * C + c] = xp[c] * xp[c];
+        o[3 * C + c] = tp[c] * tp[c];
+        o[4 * C + c] = xp[c] * tp[c];
+      }
+    }
+    filter_row(prod, ws.horizontal.data() + y * row5, W, S5, w, r);
+  });
+
+  // Pass 2: per row, filter along columns, then the SSIM map and its derivatives with
+  // respect to mu_x, G*x^2 and G*xy (already divided by the pixel-channel count).
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
+    Scalar* m = ws.rows[std::size_t(worker)].data();
+    filter_column(ws.horizontal.data(), m, int(y), H, row5, w, r);
+    Scalar* dm = ws.dmaps.data() + y * std::size_t(W) * S3;
+    double row_sum = 0;
+    for (int px = 0; px < W; ++px) {
+      const Scalar* s = m + std::size_t(px) * S5;
+      Scalar* d = dm + std::size_t(px) * S3;
+      Scalar pixel_sum = 0;
+      for (int c = 0; c < C; ++c) {
+        const Scalar mx = s[c], my = s[C + c];
+        const Scalar sxx = s[2 * C + c] - mx * mx;
+        const Scalar syy = s[3 * C + c] - my * my;
+        const Scalar sxy = s[4 * C + c] - mx * my;
+        const Scalar a1 = 2 * mx * my + c1, a2 = 2 * sxy + c2;
+        const Scalar b1 = mx * mx + my * my + c1, b2 = sxx + syy + c2;
+        const Scalar inv = Scalar(1) / (b1 * b2);
+        const Scalar val = a1 * a2 * inv;
+        pixel_sum += val;
+        // d val / d mu_x holding G*x^2 and G*xy fixed (they carry their own terms).
+        d[c] = scale * (2 * my * (a2 - a1) * inv - val * (2 * mx / b1 - 2 * mx / b2));
+        d[C + c] = scale * (-val / b2);          // d val / d (G*x^2)
+        d[2 * C + c] = scale * (2 * a1 * inv);   // d val / d (G*xy)
+      }
+      row_sum += double(pixel_sum);
+    }
+    ws.row_sums[y] = row_sum;
+  });
+
+  const double total = sum_in_order(ws.row_sums, std::size_t(H));
+  ws.forward_done = true;
+  return Scalar(total * double(scale));
+}
+
+// inputs:      pred, target [H][W][C], exactly as passed to the preceding ssim() call
+//              that filled `ws` (same params)
+// grad output: v_ssim (scalar)
+// grad input:  v_pred [H][W][C] (resized; overwritten, or added to when accumulate)
+template <class Scalar>
+void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
+              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
+  using namespace losses_detail;
+  check_images("ssim_vjp", pred, target);
+  ensure(ws.forward_done && ws.width == pred.width && ws.height == pred.height && ws.channels == pred.channels,
+         "ssim_vjp: the workspace holds no forward pass for a ", pred.width, "x", pred.height, "x",
+         pred.channels, " image (call ssim() first with the same images and workspace)");
+  if (accumulate) {
+    ensure(v_pred.same_shape(pred) && v_pred.data.size() == pred.data.size(),
+           "ssim_vjp: accumulate into a gradient image of a different shape");
+  } else if (!v_pred.same_shape(pred) || v_pred.data.size() != pred.data.size()) {
+    v_pred = Image<Scalar>(pred.width, pred.height, pred.channels);
+  }
+  const int W = pred.width, H = pred.height, C = pred.channels;
+  const int S3 = 3 * C;
+  const std::size_t row3 = std::size_t(W) * S3;
+  threads = resolve_threads(threads);
+  prepare_rows(ws, threads, std::size_t(W) * 5 * C);
+  const Scalar* w = ws.window.data();
+  const int r = ws.params.window / 2;
+
+  // The forward maps are windowed sums, so the adjoint filters the derivative maps with
+  // the same (symmetric, zero-padded) window: rows first, then columns.
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
+    filter_row(ws.dmaps.data() + y * row3, ws.horizontal.data() + y * row3, W, S3, w, r);
+  });
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
+    Scalar* f = ws.rows[std::size_t(worker)].data();
+    filter_column(ws.horizontal.data(), f, int(y), H, row3, w, r);
+    const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
+    const Scalar* t = target.data.data() + y * std::size_t(W) * C;
+    Scalar* v = v_pred.data.data() + y * std::size_t(W) * C;
+    for (int px = 0; px < W; ++px) {
+      const Scalar* fp = f + std::size_t(px) * S3;
+      for (int c = 0; c < C; ++c) {
+        const std::size_t i = std::size_t(px) * C + std::size_t(c);
+        const Scalar g = v_ssim * (fp[c] + 2 * x[i] * fp[C + c] + t[i] * fp[2 * C + c]);
+        v[i] = accumulate ? v[i] + g : g;
+      }
+    }
+  });
+}
+
+// Convenience for one-off evaluation (metrics): allocates its own workspace.
+template <class Scalar>
+Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, const SsimParams& params = {},
+            int threads = 0) {
+  SsimWorkspace<Scalar> ws;
+  return ssim(pred, target, ws, params, threads);
+}
+
+// ---------------------------------------------------------------- combined
+
+struct CombinedLossParams {
+  double lambda = 0.2;  // weight of (1 - SSIM); 3DGS uses 0.2
+  SsimParams ssim;
+};
+
+// inputs:     pred, target [H][W][C]
+// grad input: v_pred [H][W][C] = d total / d pred (resized, overwritten)
+// Returns total = (1 - lambda) L1 + lambda (1 - SSIM) and its two terms.
+// Throws when the loss is not finite (a NaN or infinity in either image).
+template <class Scalar>
+LossTerms<Scalar> combined_loss(const Image<Scalar>& pred, const Image<Scalar>& target, Image<Scalar>& v_pred,
+                                SsimWorkspace<Scalar>& ws, const CombinedLossParams& params = {},
+                                int threads = 0) {
+  ensure(params.lambda >= 0 && params.lambda <= 1, "combined_loss: lambda must be in [0, 1], got ",
+         params.lambda);
+  const Scalar lambda = Scalar(params.lambda);
+  LossTerms<Scalar> out;
+  out.l1 = l1_loss(pred, target);
+  out.ssim = ssim(pred, target, ws, params.ssim, threads);
+  out.total = (1 - lambda) * out.l1 + lambda * (1 - out.ssim);
+  ensure(std::isfinite(double(out.total)), "combined_loss: loss is not finite (L1 ", out.l1, ", SSIM ",
+         out.ssim, "): the prediction or the target holds NaN or infinity");
+  ssim_vjp(pred, target, -lambda, ws, v_pred, false, threads);
+  l1_loss_vjp(pred, target, 1 - lambda, v_pred, true);
+  return out;
+}
+
+// Same, with lambda given directly.
+template <class Scalar>
+LossTerms<Scalar> combined_loss(const Image<Scalar>& pred, const Image<Scalar>& target, Image<Scalar>& v_pred,
+                                SsimWorkspace<Scalar>& ws, double lambda, int threads = 0) {
+  CombinedLossParams p;
+  p.lambda = lambda;
+  return combined_loss(pred, target, v_pred, ws, p, threads);
+}
+
+}  // namespace orbitforge
