@@ -40,6 +40,7 @@ struct TileGrid {
     tiles_y = (h + ts - 1) / ts;
   }
   int tile_count() const { return tiles_x * tiles_y; }
+  std::size_t pixel_count() const { return std::size_t(width) * std::size_t(height); }
   int tile_x0(int t) const { return (t % tiles_x) * tile_size; }
   int tile_y0(int t) const { return (t / tiles_x) * tile_size; }
 };

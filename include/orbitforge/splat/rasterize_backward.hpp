@@ -1,0 +1,246 @@
+#pragma once
+// Backward pass of rasterize(): from dL/d(colour) [H][W][3] and optionally
+// dL/d(alpha) [H][W][1] (alpha = 1 - final T) and dL/d(depth) [H][W][1], the
+// gradients w.r.t. every ProjectedSplats field (and the background colour).
+//
+// Each tile is replayed back to front from the forward's saved final T and
+// replay count (3DGS style): T_before = T_after / (1 - alpha), with alpha
+// recomputed by exactly the forward's arithmetic (same exp path) and the same
+// skip rules. Per pixel two running values suffice:
+//   T   transmittance in front of the current Gaussian
+//   acc = sum over later Gaussians k of w_k (v_c . c_k + v_d z_k)
+//         + T_final (v_c . background) - v_alpha T_final
+// so that dL/d(alpha_i) = T_i (v_c . c_i + v_d z_i) - acc / (1 - alpha_i).
+// Where the forward clamped alpha at 0.99, d alpha / d(opacity exp(power)) = 0:
+// no opacity, conic or mean gradient (colour and depth still get w_i).
+//
+// Determinism: each tile writes its per-Gaussian sums into its own slots of a
+// per-(tile, Gaussian) buffer; the slots are added up in tile order afterwards.
+// Results therefore do not depend on the thread count or scheduling.
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
+#include "orbitforge/splat/bin.hpp"
+#include "orbitforge/splat/projected.hpp"
+#include "orbitforge/splat/rasterize.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+struct RasterGradOutput {
+  ProjectedSplatsGrad<Scalar> splats;       // [N] per input Gaussian (zero for culled)
+  std::array<Scalar, 3> v_background{{0, 0, 0}};
+  double ms = 0;
+};
+
+namespace detail {
+
+template <class T> struct identity { using type = T; };
+template <class T> using identity_t = typename identity<T>::type;  // blocks deduction (lets callers pass nullptr)
+
+enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGradG, kGradBl, kGradZ, kGradFields };
+
+template <class B, bool FastExp, class Scalar>
+void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
+                             const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
+                             const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
+                             Scalar* scratch, Scalar* pair_grad) {
+  using M = simd::mask_t<B>;
+  using Rules = RasterRules<Scalar>;
+  constexpr std::size_t N = B::size;
+  const TileGrid& g = bins.grid;
+  const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
+  const Scalar fx0 = Scalar(tx0), fy0 = Scalar(ty0);
+  const std::size_t off = bins.tile_offsets[std::size_t(t)];
+  const std::int32_t* ranks = bins.tile_ranks.data() + off;
+  const int n = int(bins.tile_offsets[std::size_t(t) + 1] - off);
+  const SplatRecord<Scalar>* rec = bins.records.data();
+  const std::size_t lanes = std::size_t(L.chunks) * N;
+
+  // Per-lane state, tile-local: T, acc, replay count, v_r, v_g, v_b, v_d.
+  Scalar* sT = scratch;
+  Scalar* sAcc = sT + lanes;
+  Scalar* sRep = sAcc + lanes;
+  Scalar* sVr = sRep + lanes;
+  Scalar* sVg = sVr + lanes;
+  Scalar* sVb = sVg + lanes;
+  Scalar* sVd = sVb + lanes;
+  Scalar* chunk_max = sVd + lanes;  // [chunks] largest replay count of the chunk
+  int tile_max = 0;
+  for (int k = 0; k < L.chunks; ++k) {
+    int cmax = 0;
+    for (std::size_t l = 0; l < N; ++l) {
+      const std::size_t li = std::size_t(k) * N + l;
+      const int p = L.pixel[li];
+      const int x = p < 0 ? g.width : tx0 + p % L.tile_size, y = p < 0 ? g.height : ty0 + p / L.tile_size;
+      if (p < 0 || x >= g.width || y >= g.height) {
+        sT[li] = sAcc[li] = sRep[li] = sVr[li] = sVg[li] = sVb[li] = sVd[li] = Scalar(0);
+        continue;
+      }
+      const std::size_t pi = std::size_t(y) * std::size_t(g.width) + std::size_t(x);
+      const Scalar T = fwd.transmittance.data[pi];
+      const Scalar vr = v_color.data[3 * pi], vg = v_color.data[3 * pi + 1], vb = v_color.data[3 * pi + 2];
+      const Scalar va = v_alpha ? v_alpha->data[pi] : Scalar(0);
+      sT[li] = T;
+      sVr[li] = vr; sVg[li] = vg; sVb[li] = vb;
+      sVd[li] = v_depth ? v_depth->data[pi] : Scalar(0);
+      // Colour sees T_final * background; alpha = 1 - T_final.
+      sAcc[li] = T * (vr * params.background[0] + vg * params.background[1] + vb * params.background[2]) - va * T;
+      const int rep = fwd.replay[pi];
+      sRep[li] = Scalar(rep);
+      cmax = std::max(cmax, rep);
+    }
+    chunk_max[k] = Scalar(cmax);
+    tile_max = std::max(tile_max, cmax);
+  }
+  // Entries past every pixel's last blend get zero gradient.
+  for (int j = tile_max; j < n; ++j)
+    for (int f = 0; f < kGradFields; ++f) pair_grad[(off + std::size_t(j)) * kGradFields + std::size_t(f)] = Scalar(0);
+
+  const B zero(Scalar(0)), one(Scalar(1));
+  for (int j = tile_max - 1; j >= 0; --j) {
+    const SplatRecord<Scalar>& G = rec[ranks[j]];
+    const B jj = B(Scalar(j));
+    B g_o = zero, g_a = zero, g_b = zero, g_c = zero, g_mx = zero, g_my = zero;
+    B g_r = zero, g_g = zero, g_bl = zero, g_z = zero;
+    for (int k = 0; k < L.chunks; ++k) {
+      if (Scalar(j) >= chunk_max[k]) continue;  // no lane of the chunk reached this entry
+      const Scalar cxl = fx0 + L.cx_lo[std::size_t(k)], cxh = fx0 + L.cx_hi[std::size_t(k)];
+      const Scalar cyl = fy0 + L.cy_lo[std::size_t(k)], cyh = fy0 + L.cy_hi[std::size_t(k)];
+      if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) continue;
+      const std::size_t base = std::size_t(k) * N;
+      const B px = B::load_unaligned(L.ox.data() + base) + B(fx0);
+      const B py = B::load_unaligned(L.oy.data() + base) + B(fy0);
+      const M inside = (jj < B::load_unaligned(sRep + base)) & (px > B(G.x_lo)) & (px < B(G.x_hi)) &
+                       (py > B(G.y_lo)) & (py < B(G.y_hi));
+      // Same arithmetic as the forward, so alpha (and the skip decisions) match bit for bit.
+      const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
+      const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
+      const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
+      const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
+      const B raw = B(G.opacity) * e;
+      const B alpha = simd::min(B(Rules::max_alpha()), raw);
+      const M m = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
+      if (!simd::any(m)) continue;
+
+      const B T_after = B::load_unaligned(sT + base);
+      const B acc = B::load_unaligned(sAcc + base);
+      const B vr = B::load_unaligned(sVr + base), vg = B::load_unaligned(sVg + base);
+      const B vb = B::load_unaligned(sVb + base), vd = B::load_unaligned(sVd + base);
+      const B inv_one_minus = one / (one - alpha);
+      const B T = T_after * inv_one_minus;  // transmittance in front of this Gaussian
+      const B w = alpha * T;
+      // v . (colour, depth) of this Gaussian as seen by the pixel
+      const B vc = simd::fma(vr, B(G.color_r), simd::fma(vg, B(G.color_g), simd::fma(vb, B(G.color_b), vd * B(G.depth))));
+      const B v_alpha_i = simd::fma(T, vc, -(acc * inv_one_minus));
+      simd::select(m, T, T_after).store_unaligned(sT + base);
+      simd::select(m, simd::fma(w, vc, acc), acc).store_unaligned(sAcc + base);
+
+      const B wm = simd::select(m, w, zero);
+      g_r = simd::fma(wm, vr, g_r);
+      g_g = simd::fma(wm, vg, g_g);
+      g_bl = simd::fma(wm, vb, g_bl);
+      g_z = simd::fma(wm, vd, g_z);
+      // Through alpha = opacity exp(power) where it was not clamped.
+      const B va = simd::select(m & (raw <= B(Rules::max_alpha())), v_alpha_i, zero);
+      g_o = simd::fma(va, e, g_o);
+      const B v_power = va * alpha;  // d alpha / d power = opacity exp(power) = alpha
+      g_a = simd::fma(v_power, dx * dx, g_a);
+      g_b = simd::fma(v_power, dx * dy, g_b);
+      g_c = simd::fma(v_power, dy * dy, g_c);
+      // d power / d mean_x = a dx + b dy;  d power / d mean_y = b dx + c dy
+      g_mx = simd::fma(v_power, simd::fma(B(G.conic_a), dx, B(G.conic_b) * dy), g_mx);
+      g_my = simd::fma(v_power, simd::fma(B(G.conic_b), dx, B(G.conic_c) * dy), g_my);
+    }
+    Scalar* out = pair_grad + (off + std::size_t(j)) * kGradFields;
+    out[kGradOpacity] = simd::hadd(g_o);
+    out[kGradA] = Scalar(-0.5) * simd::hadd(g_a);
+    out[kGradB] = -simd::hadd(g_b);
+    out[kGradC] = Scalar(-0.5) * simd::hadd(g_c);
+    out[kGradMx] = simd::hadd(g_mx);
+    out[kGradMy] = simd::hadd(g_my);
+    out[kGradR] = simd::hadd(g_r);
+    out[kGradG] = simd::hadd(g_g);
+    out[kGradBl] = simd::hadd(g_bl);
+    out[kGradZ] = simd::hadd(g_z);
+  }
+}
+
+}  // namespace detail
+
+// bins, params and fwd must be those of the forward pass being differentiated.
+// v_alpha and v_depth may be null (no loss term on them).
+template <class B, class Scalar>
+void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
+                             const RasterOutput<Scalar>& fwd, const Image<Scalar>& v_color,
+                             const detail::identity_t<Image<Scalar>>* v_alpha,
+                             const detail::identity_t<Image<Scalar>>* v_depth, std::size_t n_splats,
+                             RasterGradOutput<Scalar>& out, RasterWorkspace<Scalar>& ws) {
+  static_assert(std::is_same<typename B::value_type, Scalar>::value, "rasterize_backward: batch of the wrong precision");
+  const auto t0 = std::chrono::steady_clock::now();
+  const TileGrid& g = bins.grid;
+  ensure(fwd.color.width == g.width && fwd.color.height == g.height && fwd.replay.size() == g.pixel_count(),
+         "rasterize_backward: the forward output does not match the bins (", fwd.color.width, "x", fwd.color.height,
+         " vs ", g.width, "x", g.height, ")");
+  ensure(v_color.width == g.width && v_color.height == g.height && v_color.channels == 3,
+         "rasterize_backward: v_color is ", v_color.width, "x", v_color.height, "x", v_color.channels, ", expected ",
+         g.width, "x", g.height, "x3");
+  for (const Image<Scalar>* v : {v_alpha, v_depth})
+    ensure(!v || (v->width == g.width && v->height == g.height && v->channels == 1),
+           "rasterize_backward: v_alpha / v_depth must be ", g.width, "x", g.height, "x1");
+  for (std::size_t r = 0; r < bins.order.size(); ++r)
+    ensure(std::size_t(bins.order[r]) < n_splats, "rasterize_backward: n_splats (", n_splats, ") is smaller than the binned set");
+
+  ws.lanes.build(g.tile_size, int(B::size));
+  const int threads = resolve_threads(params.threads);
+  const std::size_t lanes = std::size_t(ws.lanes.chunks) * B::size;
+  ws.worker_scratch.resize(std::size_t(threads));
+  for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
+  ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
+
+  auto run = [&](auto fast) {
+    constexpr bool Fast = decltype(fast)::value;
+    parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
+      detail::rasterize_backward_tile<B, Fast>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha, v_depth,
+                                                ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data());
+    });
+  };
+  if (params.fast_exp) run(std::true_type{});
+  else run(std::false_type{});
+
+  // Sum the per-(tile, Gaussian) slots in tile order: deterministic.
+  ProjectedSplatsGrad<Scalar>& gr = out.splats;
+  gr.assign_zero(n_splats);
+  Scalar* fields[detail::kGradFields] = {gr.v_opacity.data(), gr.v_conic_a.data(), gr.v_conic_b.data(),
+                                         gr.v_conic_c.data(), gr.v_mean_x.data(),  gr.v_mean_y.data(),
+                                         gr.v_color_r.data(), gr.v_color_g.data(), gr.v_color_b.data(),
+                                         gr.v_depth.data()};
+  const std::size_t pairs = bins.pairs();
+  for (std::size_t e = 0; e < pairs; ++e) {
+    const std::size_t i = std::size_t(bins.order[std::size_t(bins.tile_ranks[e])]);
+    const Scalar* pg = ws.pair_grad.data() + e * detail::kGradFields;
+    for (int f = 0; f < detail::kGradFields; ++f) fields[f][i] += pg[f];
+  }
+  // Background: colour = ... + T_final background.
+  out.v_background = {{0, 0, 0}};
+  for (std::size_t p = 0; p < g.pixel_count(); ++p)
+    for (int c = 0; c < 3; ++c) out.v_background[std::size_t(c)] += v_color.data[3 * p + std::size_t(c)] * fwd.transmittance.data[p];
+  out.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+template <class Scalar>
+void rasterize_backward(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
+                        const RasterOutput<Scalar>& fwd, const Image<Scalar>& v_color,
+                        const detail::identity_t<Image<Scalar>>* v_alpha,
+                        const detail::identity_t<Image<Scalar>>* v_depth, std::size_t n_splats, RasterGradOutput<Scalar>& out,
+                        RasterWorkspace<Scalar>& ws) {
+  rasterize_backward_with<simd::native_batch<Scalar>>(bins, params, fwd, v_color, v_alpha, v_depth, n_splats, out, ws);
+}
+
+}  // namespace orbitforge

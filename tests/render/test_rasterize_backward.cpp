@@ -1,0 +1,234 @@
+// rasterize_backward against central finite differences (double) of
+// L = sum w_c colour + sum w_a alpha + sum w_d depth, w.r.t. every ProjectedSplats field.
+#include <catch2/catch.hpp>
+
+#include <random>
+
+#include "orbitforge/splat/bin.hpp"
+#include "orbitforge/splat/rasterize.hpp"
+#include "orbitforge/splat/rasterize_backward.hpp"
+#include "render/reference_renderer.hpp"
+
+using namespace orbitforge;
+using namespace orbitforge_test;
+
+namespace {
+
+struct LossWeights {
+  Image<double> wc, wa, wd;
+};
+
+LossWeights random_weights(int w, int h, std::uint32_t seed, bool alpha, bool depth) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  LossWeights lw{Image<double>(w, h, 3), Image<double>(w, h, 1), Image<double>(w, h, 1)};
+  for (auto& v : lw.wc.data) v = u(rng);
+  for (auto& v : lw.wa.data) v = alpha ? u(rng) : 0;
+  for (auto& v : lw.wd.data) v = depth ? 0.1 * u(rng) : 0;
+  return lw;
+}
+
+template <class B = simd::native_batch<double>>
+double loss(const ProjectedSplats<double>& s, int w, int h, int tile, const RasterParams<double>& p, const LossWeights& lw) {
+  BinWorkspace<double> bins;
+  bin_splats(s, w, h, tile, bins);
+  RasterOutput<double> out;
+  RasterWorkspace<double> ws;
+  rasterize_with<B>(bins, p, out, ws);
+  double L = 0;
+  for (std::size_t i = 0; i < out.color.data.size(); ++i) L += lw.wc.data[i] * out.color.data[i];
+  for (std::size_t i = 0; i < out.depth.data.size(); ++i)
+    L += lw.wa.data[i] * (1 - out.transmittance.data[i]) + lw.wd.data[i] * out.depth.data[i];
+  return L;
+}
+
+template <class B = simd::native_batch<double>>
+RasterGradOutput<double> analytic(const ProjectedSplats<double>& s, int w, int h, int tile, const RasterParams<double>& p,
+                                  const LossWeights& lw, bool alpha, bool depth) {
+  BinWorkspace<double> bins;
+  bin_splats(s, w, h, tile, bins);
+  RasterOutput<double> out;
+  RasterWorkspace<double> ws;
+  rasterize_with<B>(bins, p, out, ws);
+  RasterGradOutput<double> g;
+  rasterize_backward_with<B>(bins, p, out, lw.wc, alpha ? &lw.wa : nullptr, depth ? &lw.wd : nullptr, s.size(), g, ws);
+  return g;
+}
+
+std::vector<double>* field(ProjectedSplats<double>& s, int f) {
+  std::vector<double>* v[] = {&s.mean_x, &s.mean_y, &s.conic_a, &s.conic_b, &s.conic_c,
+                              &s.opacity, &s.color_r, &s.color_g, &s.color_b, &s.depth};
+  return v[f];
+}
+const std::vector<double>* grad_field(const ProjectedSplatsGrad<double>& g, int f) {
+  const std::vector<double>* v[] = {&g.v_mean_x, &g.v_mean_y, &g.v_conic_a, &g.v_conic_b, &g.v_conic_c,
+                                    &g.v_opacity, &g.v_color_r, &g.v_color_g, &g.v_color_b, &g.v_depth};
+  return v[f];
+}
+const char* field_names[] = {"mean_x", "mean_y", "conic_a", "conic_b", "conic_c",
+                             "opacity", "color_r", "color_g", "color_b", "depth"};
+
+void check_fd(ProjectedSplats<double> s, int w, int h, int tile, bool alpha, bool depth, std::uint32_t seed) {
+  RasterParams<double> p;
+  p.background = {{0.3, 0.6, 0.1}};
+  p.threads = 2;
+  const LossWeights lw = random_weights(w, h, seed, alpha, depth);
+  const auto g = analytic(s, w, h, tile, p, lw, alpha, depth);
+  double worst = 0;
+  int checked = 0;
+  // Steps per field: small enough that no pair crosses a threshold (the scene is
+  // kept 1e-3 away from them), large enough to beat round-off; colour and depth
+  // enter linearly.
+  const double steps[] = {1e-5, 1e-5, 1e-7, 1e-7, 1e-7, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4};
+  for (int f = 0; f < 10; ++f) {
+    // Relative error, floored at 1% of the field's largest gradient so that
+    // round-off on near-zero entries does not count as error.
+    double scale = 0;
+    for (double x : *grad_field(g.splats, f)) scale = std::max(scale, std::abs(x));
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      if (s.radius[i] <= 0) continue;
+      std::vector<double>& v = *field(s, f);
+      const double x0 = v[i];
+      const double hstep = steps[f];
+      v[i] = x0 + hstep;
+      const double lp = loss(s, w, h, tile, p, lw);
+      v[i] = x0 - hstep;
+      const double lm = loss(s, w, h, tile, p, lw);
+      v[i] = x0;
+      const double fd = (lp - lm) / (2 * hstep);
+      const double an = (*grad_field(g.splats, f))[i];
+      const double err = std::abs(fd - an) / std::max({std::abs(fd), 1e-2 * scale, 1e-12});
+      INFO(field_names[f] << " of Gaussian " << i << ": analytic " << an << " fd " << fd);
+      CHECK(err < 1e-6);
+      worst = std::max(worst, err);
+      ++checked;
+    }
+  }
+  // Background colour.
+  for (int c = 0; c < 3; ++c) {
+    RasterParams<double> q = p;
+    q.background[std::size_t(c)] += 1e-6;
+    const double lp = loss(s, w, h, tile, q, lw);
+    q.background[std::size_t(c)] -= 2e-6;
+    const double lm = loss(s, w, h, tile, q, lw);
+    CHECK(std::abs((lp - lm) / 2e-6 - g.v_background[std::size_t(c)]) < 1e-6 * std::max(1.0, std::abs(g.v_background[std::size_t(c)])));
+  }
+  CHECK(checked > 0);
+  WARN("worst relative FD error " << worst << " over " << checked << " entries");
+}
+
+}  // namespace
+
+TEST_CASE("rasterize_backward matches finite differences", "[render][grad]") {
+  RandomSplatOptions o;
+  o.opacity_max = 0.9;  // stay off the 0.99 clamp
+  o.sigma_min = 1.5;
+  o.sigma_max = 8;
+  auto s = random_splats<double>(40, 26, 21, 101, o);
+  clear_thresholds(s, 26, 21, 1e-3);
+  REQUIRE(threshold_violators(s, 26, 21, 1e-3).empty());
+  SECTION("colour only, 8 px tiles") { check_fd(s, 26, 21, 8, false, false, 1); }
+  SECTION("colour + alpha + depth, 16 px tiles") { check_fd(s, 26, 21, 16, true, true, 2); }
+}
+
+TEST_CASE("rasterize_backward with early-stopped pixels matches finite differences", "[render][grad]") {
+  RandomSplatOptions o;
+  o.opacity_min = 0.6;
+  o.opacity_max = 0.95;
+  o.sigma_min = 4;
+  o.sigma_max = 10;
+  auto s = random_splats<double>(60, 20, 18, 202, o);
+  // Keep raw opacity exp(power) below 0.99 everywhere: opacity <= 0.95.
+  clear_thresholds(s, 20, 18, 1e-3);
+  REQUIRE(threshold_violators(s, 20, 18, 1e-3).empty());
+  BinWorkspace<double> bins;
+  bin_splats(s, 20, 18, 16, bins);
+  RasterOutput<double> out;
+  RasterWorkspace<double> ws;
+  rasterize(bins, RasterParams<double>{}, out, ws);
+  std::size_t stopped = 0;
+  for (double T : out.transmittance.data) stopped += T < 2e-4;
+  REQUIRE(stopped > 10);  // the scene exercises the 1e-4 stop
+  check_fd(s, 20, 18, 16, true, true, 3);
+}
+
+TEST_CASE("gradients are zero where the forward clamps or skips", "[render][grad]") {
+  ProjectedSplats<double> s;
+  s.resize(3);
+  // 0: opacity 1 at the centre -> alpha clamped at 0.99 near the mean.
+  // 1: opacity 0 -> always skipped.  2: culled (radius 0).
+  for (std::size_t i = 0; i < 3; ++i) {
+    s.mean_x[i] = 8; s.mean_y[i] = 8; s.conic_a[i] = 1e-4; s.conic_b[i] = 0; s.conic_c[i] = 1e-4;
+    s.color_r[i] = 0.5; s.color_g[i] = 0.5; s.color_b[i] = 0.5; s.depth[i] = 1 + double(i);
+    set_rect_from_conic(s, i, 16, 16);
+  }
+  s.opacity[0] = 1; s.opacity[1] = 0; s.opacity[2] = 0.5;
+  s.radius[2] = 0;
+  const LossWeights lw = random_weights(16, 16, 7, true, true);
+  RasterParams<double> p;
+  const auto g = analytic(s, 16, 16, 16, p, lw, true, true);
+  // Every pixel of Gaussian 0 is clamped (opacity exp(power) >= 0.99 over the image).
+  CHECK(g.splats.v_opacity[0] == 0);
+  CHECK(g.splats.v_conic_a[0] == 0);
+  CHECK(g.splats.v_mean_x[0] == 0);
+  CHECK(g.splats.v_color_r[0] != 0);  // colour still flows (w = 0.99)
+  for (int f = 0; f < 10; ++f) {
+    CHECK((*grad_field(g.splats, f))[1] == 0);
+    CHECK((*grad_field(g.splats, f))[2] == 0);
+  }
+}
+
+TEST_CASE("backward: scalar kernel, SIMD kernel and thread counts agree", "[render][grad]") {
+  auto s = random_splats<double>(300, 45, 38, 303);
+  const LossWeights lw = random_weights(45, 38, 9, true, true);
+  RasterParams<double> p;
+  p.threads = 1;
+  const auto a = analytic(s, 45, 38, 16, p, lw, true, true);
+  const auto b = analytic<simd::scalar_batch<double>>(s, 45, 38, 16, p, lw, true, true);
+  p.threads = 2;
+  const auto c = analytic(s, 45, 38, 16, p, lw, true, true);
+  for (int f = 0; f < 10; ++f)
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const double x = (*grad_field(a.splats, f))[i];
+      CHECK(std::abs(x - (*grad_field(b.splats, f))[i]) <= 1e-9 * std::max(1.0, std::abs(x)));
+      CHECK(x == (*grad_field(c.splats, f))[i]);  // deterministic whatever the thread count
+    }
+}
+
+TEST_CASE("backward in float agrees with double", "[render][grad]") {
+  RandomSplatOptions o;
+  o.opacity_max = 0.9;
+  auto sd = random_splats<double>(200, 40, 30, 404, o);
+  clear_thresholds(sd, 40, 30, 1e-3);
+  ProjectedSplats<float> sf;
+  sf.resize(sd.size());
+  for (std::size_t i = 0; i < sd.size(); ++i) {
+    sf.mean_x[i] = float(sd.mean_x[i]); sf.mean_y[i] = float(sd.mean_y[i]);
+    sf.conic_a[i] = float(sd.conic_a[i]); sf.conic_b[i] = float(sd.conic_b[i]); sf.conic_c[i] = float(sd.conic_c[i]);
+    sf.opacity[i] = float(sd.opacity[i]);
+    sf.color_r[i] = float(sd.color_r[i]); sf.color_g[i] = float(sd.color_g[i]); sf.color_b[i] = float(sd.color_b[i]);
+    sf.depth[i] = float(sd.depth[i]);
+    sf.radius[i] = sd.radius[i];
+    sf.rect_x0[i] = sd.rect_x0[i]; sf.rect_x1[i] = sd.rect_x1[i]; sf.rect_y0[i] = sd.rect_y0[i]; sf.rect_y1[i] = sd.rect_y1[i];
+  }
+  clear_thresholds(sf, 40, 30, 1e-3);
+  for (std::size_t i = 0; i < sd.size(); ++i) sd.opacity[i] = double(sf.opacity[i]);
+  const LossWeights lw = random_weights(40, 30, 5, false, false);
+  Image<float> wcf(40, 30, 3);
+  for (std::size_t i = 0; i < wcf.data.size(); ++i) wcf.data[i] = float(lw.wc.data[i]);
+  RasterParams<double> pd;
+  const auto gd = analytic(sd, 40, 30, 16, pd, lw, false, false);
+  BinWorkspace<float> bins;
+  bin_splats(sf, 40, 30, 16, bins);
+  RasterOutput<float> out;
+  RasterWorkspace<float> ws;
+  RasterParams<float> pf;
+  rasterize(bins, pf, out, ws);
+  RasterGradOutput<float> gf;
+  rasterize_backward(bins, pf, out, wcf, nullptr, nullptr, sf.size(), gf, ws);
+  for (std::size_t i = 0; i < sd.size(); ++i) {
+    CHECK(gf.splats.v_opacity[i] == Approx(gd.splats.v_opacity[i]).margin(1e-3).epsilon(1e-3));
+    CHECK(gf.splats.v_mean_x[i] == Approx(gd.splats.v_mean_x[i]).margin(1e-3).epsilon(1e-3));
+    CHECK(gf.splats.v_color_g[i] == Approx(gd.splats.v_color_g[i]).margin(1e-4).epsilon(1e-4));
+  }
+}
