@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "orbitforge/core/image.hpp"
+#include "orbitforge/splat/project.hpp"
 #include "orbitforge/splat/projected.hpp"
 
 namespace orbitforge_test {
@@ -180,6 +181,17 @@ double max_abs_diff(const Image<T>& a, const Image<T>& b) {
   double m = 0;
   for (std::size_t i = 0; i < a.data.size(); ++i) m = std::max(m, std::abs(double(a.data[i]) - double(b.data[i])));
   return m;
+}
+
+// Full reference from a scene: the project helper's per-Gaussian projection
+// (single thread), then the per-pixel reference above.
+template <class Scene>
+ReferenceImages<typename Scene::scalar_type> reference_render(
+    const Scene& scene, const orbitforge::Camera<typename Scene::scalar_type>& camera,
+    std::array<typename Scene::scalar_type, 3> background, const orbitforge::ProjectionParams& pp = {}) {
+  ProjectedSplats<typename Scene::scalar_type> s;
+  orbitforge::project_scene(scene, camera, pp, s, nullptr, 1);
+  return reference_rasterize(s, camera.intrinsics.width, camera.intrinsics.height, background);
 }
 
 }  // namespace orbitforge_test

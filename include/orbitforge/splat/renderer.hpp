@@ -1,0 +1,168 @@
+#pragma once
+// The whole renderer: project (EWA + SH colour, splat/project.hpp) -> bin (depth
+// sort + tile lists) -> rasterize, and the backward pass in reverse:
+// rasterize_backward -> project_scene_vjp.
+//
+//   Renderer<float> r(params);
+//   const RenderOutput<float>& img = r.render(SceneView<float>(scene), camera);
+//   const GaussianSceneGrad<float>& g = r.backward(SceneView<float>(scene), camera, v_color);
+//
+// A Renderer owns every buffer of a frame and reuses them, so rendering frames of
+// one size allocates nothing after the first. backward() differentiates the last
+// render() and must be given the same scene and camera.
+#include <array>
+#include <chrono>
+#include <cstdint>
+
+#include "orbitforge/core/camera.hpp"
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/splat/bin.hpp"
+#include "orbitforge/splat/project.hpp"
+#include "orbitforge/splat/projected.hpp"
+#include "orbitforge/splat/rasterize.hpp"
+#include "orbitforge/splat/rasterize_backward.hpp"
+#include "orbitforge/splat/scene_grad.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+struct RenderParams {
+  std::array<Scalar, 3> background{{0, 0, 0}};
+  int threads = 0;              // 0 = default (all hardware threads)
+  double near_plane = 0.01;     // cull Gaussians with camera-space z <= near_plane
+  int tile_size = 16;           // pixels per tile side (the image does not depend on it)
+  bool fast_exp = false;        // polynomial exp in the rasterizer (see bench_render for its error)
+  bool tight_extents = true;    // opacity-aware rects (never change the image)
+};
+
+struct RenderStats {
+  double project_ms = 0, sort_ms = 0, bin_ms = 0, raster_ms = 0, total_ms = 0;
+  double backward_raster_ms = 0, backward_project_ms = 0;  // of the last backward()
+  std::size_t gaussians_visible = 0;  // binned (projected and not culled)
+  std::size_t tile_entries = 0;       // (tile, Gaussian) pairs
+  std::uint64_t pairs_evaluated = 0, contributions = 0;
+  int threads = 1;
+  ProjectionStats projection;
+};
+
+template <class Scalar>
+struct RenderOutput : RasterOutput<Scalar> {
+  // RasterOutput: color [H][W][3], transmittance [H][W][1] (alpha = 1 - T),
+  // depth [H][W][1] (unnormalised), count [H][W][1], stats (rasterizer only).
+  RenderStats frame;
+};
+
+template <class Scalar>
+class Renderer {
+ public:
+  explicit Renderer(const RenderParams<Scalar>& params = {}) : params_(params) {}
+
+  RenderParams<Scalar>& params() { return params_; }
+  const RenderParams<Scalar>& params() const { return params_; }
+
+  template <class Scene>
+  const RenderOutput<Scalar>& render(const Scene& scene, const Camera<Scalar>& camera) {
+    static_assert(std::is_same<typename Scene::scalar_type, Scalar>::value, "Renderer: scene of the wrong precision");
+    using clock = std::chrono::steady_clock;
+    const auto t0 = clock::now();
+    const int threads = resolve_threads(params_.threads);
+    const ProjectionParams pp = projection_params();
+    out_.frame = {};
+    project_scene(scene, camera, pp, splats_, &out_.frame.projection, threads);
+    const auto t1 = clock::now();
+    bin_splats(splats_, camera.intrinsics.width, camera.intrinsics.height, params_.tile_size, bins_);
+    rasterize(bins_, raster_params(threads), static_cast<RasterOutput<Scalar>&>(out_), ws_);
+    const auto t2 = clock::now();
+    RenderStats& st = out_.frame;
+    st.project_ms = ms(t0, t1);
+    st.sort_ms = bins_.sort_ms;
+    st.bin_ms = bins_.bin_ms;
+    st.raster_ms = out_.stats.ms;
+    st.total_ms = ms(t0, t2);
+    st.gaussians_visible = bins_.visible();
+    st.tile_entries = bins_.pairs();
+    st.pairs_evaluated = out_.stats.pairs_evaluated;
+    st.contributions = out_.stats.contributions;
+    st.threads = threads;
+    rendered_ = true;
+    camera_ = camera;
+    scene_size_ = scene.size();
+    return out_;
+  }
+
+  // Gradients of a loss w.r.t. the scene parameters (as the adaptor exposes them)
+  // given dL/d(colour) [H][W][3] and optionally dL/d(alpha) and dL/d(depth)
+  // [H][W][1] of the last render(). Frozen groups are not computed (see Freeze).
+  template <class Scene>
+  const GaussianSceneGrad<Scalar>& backward(const Scene& scene, const Camera<Scalar>& camera,
+                                            const Image<Scalar>& v_color,
+                                            const detail::identity_t<Image<Scalar>>* v_alpha = nullptr,
+                                            const detail::identity_t<Image<Scalar>>* v_depth = nullptr,
+                                            const Freeze& freeze = {}) {
+    ensure(rendered_, "Renderer::backward: call render() first");
+    ensure(scene.size() == scene_size_, "Renderer::backward: scene has ", scene.size(),
+           " Gaussians, the last render had ", scene_size_);
+    ensure(camera.R == camera_.R && camera.t == camera_.t && camera.intrinsics.fx == camera_.intrinsics.fx &&
+               camera.intrinsics.width == camera_.intrinsics.width &&
+               camera.intrinsics.height == camera_.intrinsics.height,
+           "Renderer::backward: camera differs from the last render()");
+    using clock = std::chrono::steady_clock;
+    const auto t0 = clock::now();
+    const int threads = resolve_threads(params_.threads);
+    rasterize_backward(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
+                       v_alpha, v_depth, splats_.size(), raster_grad_, ws_);
+    const auto t1 = clock::now();
+    project_scene_vjp(scene, camera, projection_params(), splats_, raster_grad_.splats, grad_, freeze, threads);
+    const auto t2 = clock::now();
+    out_.frame.backward_raster_ms = ms(t0, t1);
+    out_.frame.backward_project_ms = ms(t1, t2);
+    return grad_;
+  }
+
+  const RenderOutput<Scalar>& output() const { return out_; }
+  const GaussianSceneGrad<Scalar>& gradients() const { return grad_; }
+  const ProjectedSplats<Scalar>& projected() const { return splats_; }
+  const ProjectedSplatsGrad<Scalar>& projected_gradients() const { return raster_grad_.splats; }
+  const std::array<Scalar, 3>& background_gradient() const { return raster_grad_.v_background; }
+  const BinWorkspace<Scalar>& bins() const { return bins_; }
+
+ private:
+  ProjectionParams projection_params() const {
+    ProjectionParams pp;
+    pp.near_plane = params_.near_plane;
+    pp.tight_extents = params_.tight_extents;
+    pp.alpha_min = double(RasterRules<Scalar>::min_alpha());
+    return pp;
+  }
+  RasterParams<Scalar> raster_params(int threads) const {
+    RasterParams<Scalar> rp;
+    rp.background = params_.background;
+    rp.threads = threads;
+    rp.fast_exp = params_.fast_exp;
+    return rp;
+  }
+  template <class T>
+  static double ms(T a, T b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+  RenderParams<Scalar> params_;
+  ProjectedSplats<Scalar> splats_;
+  BinWorkspace<Scalar> bins_;
+  RasterWorkspace<Scalar> ws_;
+  RenderOutput<Scalar> out_;
+  RasterGradOutput<Scalar> raster_grad_;
+  GaussianSceneGrad<Scalar> grad_;
+  Camera<Scalar> camera_;
+  std::size_t scene_size_ = 0;
+  bool rendered_ = false;
+};
+
+// One-shot convenience (allocates; use a Renderer for sequences of frames).
+template <class Scene>
+RenderOutput<typename Scene::scalar_type> render(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
+                                                 const RenderParams<typename Scene::scalar_type>& params = {}) {
+  Renderer<typename Scene::scalar_type> r(params);
+  return r.render(scene, camera);
+}
+
+}  // namespace orbitforge
