@@ -277,14 +277,16 @@ inline void project_covariance(const Scalar t[3], const Eigen::Matrix<Scalar, 3,
 }
 
 // v_cov = (v_xx, v_xy, v_yy): gradient w.r.t. the three scalars (xy counted once).
-// v_t (3) is accumulated into; v_Sigma (may be null) is overwritten, in the
-// entry-wise convention of covariance3d_vjp.
+// v_t (3) is accumulated into; v_Sigma (may be null) is overwritten with a
+// symmetric matrix: a symmetric change dSigma changes the loss by
+// sum_ij v_Sigma(i, j) dSigma(i, j), as covariance3d_vjp expects.
 template <class Scalar>
 inline void project_covariance_vjp(const Scalar t[3], const Eigen::Matrix<Scalar, 3, 3>& Sigma,   // inputs
                                    const Eigen::Matrix<Scalar, 3, 3>& W, Scalar fx, Scalar fy,    // camera
                                    Scalar lim_x, Scalar lim_y,                                     //
                                    const Scalar v_cov[3],                                          // grad output
-                                   Scalar* v_t, Eigen::Matrix<Scalar, 3, 3>* v_Sigma) {           // grad inputs
+                                   detail::same_t<Scalar>* v_t,                                    // grad inputs
+                                   detail::same_t<Eigen::Matrix<Scalar, 3, 3>>* v_Sigma) {
   const EwaJacobian<Scalar> J(t, fx, fy, lim_x, lim_y);
   const Eigen::Matrix<Scalar, 2, 3> T = J.times(W);
   Eigen::Matrix<Scalar, 2, 2> V;
