@@ -259,6 +259,7 @@ TEST_CASE("PLY reader: hand-written ascii file with other elements", "[io][ply]"
       "format ascii 1.0\r\n"
       "comment a hand-written file\n"
       "obj_info anything at all\n"
+      "element nothing 18446744073709551615\n"  // rows without properties: no data, no loop
       "element camera 1\n"
       "property float px\n"
       "property list uchar int ids\n"

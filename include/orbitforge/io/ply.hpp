@@ -335,6 +335,7 @@ GaussianScene<Scalar> read_ply_from_memory(const std::string& bytes, const std::
       pos += std::size_t(e.count * row);
       continue;
     }
+    if (e.properties.empty()) continue;  // rows of nothing, in any format
     // Rows of variable size: walk them. Each row consumes at least one byte or token,
     // so this loop is bounded by the file size.
     for (std::uint64_t r = 0; r < e.count; ++r) {
