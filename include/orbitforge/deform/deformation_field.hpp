@@ -1,0 +1,305 @@
+#pragma once
+// The deformation field of Deformable 3D Gaussians (Yang et al. 2023):
+//
+//   (dx, dq, ds) = F(x, t) = heads( MLP( [gamma_10(x); gamma_6(t)] ) )
+//
+// gamma_L is the frequency encoding of nn/encoding.hpp (input included, no pi:
+// 3 + 60 = 63 rows for x, 1 + 12 = 13 rows for t), the MLP is ReLU with the
+// input concatenated to one hidden layer's output, and three linear heads give
+// dx (3), dq (4), ds (3). The offsets are applied as in that method's renderer:
+//
+//   x' = x + dx,   q' = normalize(q) + dq (the rasteriser normalises again),
+//   s' = exp(log s) + ds  (the activated scale; it may come out negative, which
+//                          the covariance R S S^T R^T does not see)
+//
+// t is the video time code normalised to [0, 1]. Points are COLUMNS: means
+// [3 x N] is the [N][3] layout of GaussianScene::means mapped without copies.
+//
+// Gradient w.r.t. the means: Deformable 3D Gaussians feeds get_xyz.detach() to
+// the network, so its means get gradients only through x' = x + dx. evaluate_vjp
+// can return d/dx through the network too (v_means != nullptr); pass nullptr to
+// train as that method does.
+//
+// Head initialisation: the original code keeps PyTorch's default init for the
+// heads and relies on a warm-up (3000 iterations rendering without the
+// deformation). Here the heads' weights and biases are scaled by head_init_scale
+// (default 0.01), so the initial offsets are ~1e-3 of the trunk's activations:
+// enabling the field after the warm-up then barely moves the scene. 1 gives
+// PyTorch's init.
+#include <Eigen/Core>
+#include <cmath>
+#include <cstdint>
+#include <istream>
+#include <ostream>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/nn/binary_io.hpp"
+#include "orbitforge/nn/encoding.hpp"
+#include "orbitforge/nn/mlp.hpp"
+#include "orbitforge/splat/gaussians.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+using Matrix3X = Eigen::Matrix<Scalar, 3, Eigen::Dynamic>;
+template <class Scalar>
+using Matrix4X = Eigen::Matrix<Scalar, 4, Eigen::Dynamic>;
+
+// Per-Gaussian offsets, Gaussians as columns.
+template <class Scalar>
+struct DeformationOffsets {
+  Matrix3X<Scalar> dx;  // [3 x N]
+  Matrix4X<Scalar> dq;  // [4 x N] (w, x, y, z) offsets added to the normalised quaternion
+  Matrix3X<Scalar> ds;  // [3 x N] offsets added to the activated scale exp(log s)
+
+  Eigen::Index size() const { return dx.cols(); }
+  void resize(Eigen::Index n) {
+    if (dx.cols() != n) dx.resize(3, n);
+    if (dq.cols() != n) dq.resize(4, n);
+    if (ds.cols() != n) ds.resize(3, n);
+  }
+  void set_zero(Eigen::Index n) {
+    resize(n);
+    dx.setZero();
+    dq.setZero();
+    ds.setZero();
+  }
+};
+
+struct DeformationFieldParams {
+  int depth = 4;
+  int width = 64;
+  int skip_layer = -1;       // see MlpParams::skip_layer
+  int x_frequencies = 10;
+  int t_frequencies = 6;     // D-NeRF / synthetic setting of Deformable 3DGS (its real-scene setting is 10)
+  double head_init_scale = 0.01;
+  std::uint32_t seed = 0;
+
+  // The published network: 8 x 256, input concatenated after hidden layer 4.
+  static DeformationFieldParams original() {
+    DeformationFieldParams p;
+    p.depth = 8;
+    p.width = 256;
+    p.skip_layer = 4;
+    return p;
+  }
+  // The CPU default, chosen in bench_mlp (see README/bench figures): 4 x 64, no
+  // skip; ~30x cheaper than original() per point.
+  static DeformationFieldParams fast() { return DeformationFieldParams{}; }
+};
+
+template <class Scalar>
+class DeformationField {
+ public:
+  using Matrix = Eigen::Matrix<Scalar, Eigen::Dynamic, Eigen::Dynamic>;
+  static constexpr int kOutputs = 10;  // dx 3, dq 4, ds 3
+
+  struct Workspace {
+    Matrix input;    // [in_dims x N] encodings (kept for the vjp)
+    Matrix out;      // [10 x N]
+    Matrix v_out;    // [10 x N]
+    Matrix v_input;  // [in_dims x N]
+    typename Mlp<Scalar>::Workspace mlp;
+  };
+
+  explicit DeformationField(const DeformationFieldParams& p = DeformationFieldParams::fast())
+      : p_(p),
+        x_enc_(FrequencyEncodingParams{3, p.x_frequencies, true, false}),
+        t_enc_(FrequencyEncodingParams{1, p.t_frequencies, true, false}),
+        mlp_(mlp_params(p)) {
+    mlp_.init(p.seed, Scalar(p.head_init_scale));
+  }
+
+  const DeformationFieldParams& params() const { return p_; }
+  const Mlp<Scalar>& mlp() const { return mlp_; }
+  Mlp<Scalar>& mlp() { return mlp_; }
+  int input_dims() const { return x_enc_.output_dims() + t_enc_.output_dims(); }
+  std::size_t parameter_count() const { return mlp_.parameter_count(); }
+  std::vector<Scalar>& parameters() { return mlp_.parameters(); }
+  const std::vector<Scalar>& parameters() const { return mlp_.parameters(); }
+
+  // in:  means [3 x N], t in [0, 1] (not enforced: extrapolation is the caller's choice)
+  // out: offsets (resized to N); ws keeps what evaluate_vjp needs.
+  void evaluate(const Eigen::Ref<const Matrix3X<Scalar>>& means, Scalar t, Workspace& ws,
+                DeformationOffsets<Scalar>& out, int threads = 0) const {
+    ensure(std::isfinite(t), "DeformationField::evaluate: time code is not finite");
+    const Eigen::Index n = means.cols();
+    if (ws.input.rows() != input_dims() || ws.input.cols() != n) ws.input.resize(input_dims(), n);
+    Eigen::Matrix<Scalar, Eigen::Dynamic, 1> tcode(t_enc_.output_dims());
+    t_enc_.encode(Eigen::Matrix<Scalar, 1, 1>::Constant(t), tcode);
+    const int xr = x_enc_.output_dims();
+    const int ranges = int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(resolve_threads(threads), n / 2048)));
+    parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
+      const Eigen::Index b = n * Eigen::Index(r) / ranges, e = n * Eigen::Index(r + 1) / ranges;
+      x_enc_.encode(means.middleCols(b, e - b), ws.input.middleCols(b, e - b), 0);
+      ws.input.block(xr, b, t_enc_.output_dims(), e - b).colwise() = tcode;
+    });
+    mlp_.forward(ws.input, ws.mlp, ws.out, threads);
+    out.resize(n);
+    out.dx = ws.out.topRows(3);
+    out.dq = ws.out.middleRows(3, 4);
+    out.ds = ws.out.middleRows(7, 3);
+  }
+
+  // in:  ws        from evaluate() (same field parameters)
+  //      v_offsets gradient of the loss w.r.t. the offsets [3|4|3 x N]
+  // out: v_params  [parameter_count], ACCUMULATED (+=)
+  //      v_means   [3 x N] gradient through the network's x input, overwritten;
+  //                nullptr: skip (Deformable 3DGS detaches x from the network)
+  void evaluate_vjp(Workspace& ws, const DeformationOffsets<Scalar>& v_offsets, Scalar* v_params,
+                    Matrix3X<Scalar>* v_means, int threads = 0) const {
+    const Eigen::Index n = ws.input.cols();
+    ensure(v_offsets.dx.cols() == n && v_offsets.dq.cols() == n && v_offsets.ds.cols() == n,
+           "DeformationField::evaluate_vjp: gradients for ", v_offsets.dx.cols(), " Gaussians, evaluated ", n);
+    if (ws.v_out.rows() != kOutputs || ws.v_out.cols() != n) ws.v_out.resize(kOutputs, n);
+    ws.v_out.topRows(3) = v_offsets.dx;
+    ws.v_out.middleRows(3, 4) = v_offsets.dq;
+    ws.v_out.middleRows(7, 3) = v_offsets.ds;
+    mlp_.backward(ws.input, ws.mlp, ws.v_out, v_params, v_means ? &ws.v_input : nullptr, threads);
+    if (v_means) {
+      if (v_means->cols() != n) v_means->resize(3, n);
+      x_enc_.encode_vjp(ws.input, ws.v_input, *v_means, 0);
+    }
+  }
+
+  void save(std::ostream& os) const {
+    binary_io::write_tag(os, kTag, sizeof(Scalar));
+    const std::int32_t ints[6] = {p_.depth, p_.width, p_.skip_layer, p_.x_frequencies, p_.t_frequencies,
+                                  std::int32_t(p_.seed)};
+    for (auto v : ints) binary_io::write(os, v);
+    binary_io::write(os, p_.head_init_scale);
+    binary_io::write_array(os, parameters().data(), parameters().size());
+    ensure(bool(os), "DeformationField::save: write failed");
+  }
+  static DeformationField load(std::istream& is) {
+    binary_io::read_tag(is, kTag, sizeof(Scalar));
+    DeformationFieldParams p;
+    p.depth = binary_io::read<std::int32_t>(is, "deformation depth");
+    p.width = binary_io::read<std::int32_t>(is, "deformation width");
+    p.skip_layer = binary_io::read<std::int32_t>(is, "deformation skip layer");
+    p.x_frequencies = binary_io::read<std::int32_t>(is, "deformation x frequencies");
+    p.t_frequencies = binary_io::read<std::int32_t>(is, "deformation t frequencies");
+    p.seed = std::uint32_t(binary_io::read<std::int32_t>(is, "deformation seed"));
+    p.head_init_scale = binary_io::read<double>(is, "deformation head scale");
+    DeformationField f(p);
+    auto w = binary_io::read_array<Scalar>(is, "deformation parameters");
+    ensure(w.size() == f.parameter_count(), "DeformationField::load: ", w.size(), " parameters stored, the ",
+           p.depth, "x", p.width, " network has ", f.parameter_count());
+    f.parameters() = std::move(w);
+    return f;
+  }
+
+ private:
+  static constexpr char kTag[9] = "OFDEFRM1";
+  static MlpParams mlp_params(const DeformationFieldParams& p) {
+    ensure(p.x_frequencies >= 0 && p.t_frequencies >= 0, "DeformationField: negative frequency count");
+    MlpParams m;
+    m.input_dims = 3 * (1 + 2 * p.x_frequencies) + (1 + 2 * p.t_frequencies);
+    m.depth = p.depth;
+    m.width = p.width;
+    m.skip_layer = p.skip_layer;
+    m.head_dims = {3, 4, 3};
+    return m;
+  }
+
+  DeformationFieldParams p_;
+  FrequencyEncoding<Scalar> x_enc_, t_enc_;
+  Mlp<Scalar> mlp_;
+};
+
+// ---------------------------------------------------------------------------
+// Applying offsets to canonical Gaussians.
+
+// Deformed geometry, Gaussians as columns.
+template <class Scalar>
+struct DeformedGeometry {
+  Matrix3X<Scalar> means;      // x + dx
+  Matrix4X<Scalar> rotations;  // normalize(q) + dq, NOT normalised (the renderer normalises)
+  Matrix3X<Scalar> scales;     // exp(log s) + ds, activated, any sign
+};
+
+// torch.nn.functional.normalize's guard: q / max(|q|, 1e-12).
+template <class Scalar>
+constexpr Scalar quaternion_norm_floor() { return Scalar(1e-12); }
+
+// in:  means [3 x N], rotations [4 x N] (w, x, y, z; any norm), log_scales [3 x N], off
+// out: out (resized)
+template <class Scalar>
+void apply_deformation(const Eigen::Ref<const Matrix3X<Scalar>>& means,
+                       const Eigen::Ref<const Matrix4X<Scalar>>& rotations,
+                       const Eigen::Ref<const Matrix3X<Scalar>>& log_scales, const DeformationOffsets<Scalar>& off,
+                       DeformedGeometry<Scalar>& out) {
+  const Eigen::Index n = means.cols();
+  ensure(rotations.cols() == n && log_scales.cols() == n && off.dx.cols() == n && off.dq.cols() == n &&
+             off.ds.cols() == n,
+         "apply_deformation: inconsistent Gaussian counts (means ", n, ", rotations ", rotations.cols(),
+         ", log_scales ", log_scales.cols(), ", offsets ", off.dx.cols(), ")");
+  out.means = means + off.dx;
+  out.rotations.resize(4, n);
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const Scalar norm = std::max(rotations.col(j).norm(), quaternion_norm_floor<Scalar>());
+    out.rotations.col(j) = rotations.col(j) / norm + off.dq.col(j);
+  }
+  out.scales = log_scales.array().exp().matrix() + off.ds;
+}
+
+// in:  means, rotations, log_scales   as given to apply_deformation
+//      v_out                          gradients w.r.t. its outputs
+// out: v_means, v_rotations, v_log_scales  gradients w.r.t. the canonical parameters (overwritten)
+//      v_off                          gradients w.r.t. the offsets (overwritten)
+template <class Scalar>
+void apply_deformation_vjp(const Eigen::Ref<const Matrix4X<Scalar>>& rotations,
+                           const Eigen::Ref<const Matrix3X<Scalar>>& log_scales, const DeformedGeometry<Scalar>& v_out,
+                           Matrix3X<Scalar>& v_means, Matrix4X<Scalar>& v_rotations, Matrix3X<Scalar>& v_log_scales,
+                           DeformationOffsets<Scalar>& v_off) {
+  const Eigen::Index n = rotations.cols();
+  ensure(log_scales.cols() == n && v_out.means.cols() == n && v_out.rotations.cols() == n && v_out.scales.cols() == n,
+         "apply_deformation_vjp: inconsistent Gaussian counts");
+  v_means = v_out.means;
+  v_off.dx = v_out.means;
+  v_off.dq = v_out.rotations;
+  v_off.ds = v_out.scales;
+  v_log_scales = (v_out.scales.array() * log_scales.array().exp()).matrix();
+  v_rotations.resize(4, n);
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const Scalar len = rotations.col(j).norm();
+    const auto g = v_out.rotations.col(j);
+    if (len < quaternion_norm_floor<Scalar>()) {  // q / floor: linear
+      v_rotations.col(j) = g / quaternion_norm_floor<Scalar>();
+      continue;
+    }
+    const Eigen::Matrix<Scalar, 4, 1> u = rotations.col(j) / len;
+    // d(q/|q|)/dq = (I - u u^T) / |q|
+    v_rotations.col(j) = (g - u * u.dot(g)) / len;
+  }
+}
+
+// The log-scale a static renderer stores for an activated scale of any sign:
+// l = log(max(|s|, eps)). Its vjp is v_s = v_l / s where |s| > eps, else 0.
+template <class Scalar>
+void log_abs_scales(const Eigen::Ref<const Matrix3X<Scalar>>& scales, Scalar eps, Matrix3X<Scalar>& out) {
+  out = scales.array().abs().max(eps).log().matrix();
+}
+template <class Scalar>
+void log_abs_scales_vjp(const Eigen::Ref<const Matrix3X<Scalar>>& scales, Scalar eps,
+                        const Eigen::Ref<const Matrix3X<Scalar>>& v_log, Matrix3X<Scalar>& v_scales) {
+  v_scales = (scales.array().abs() > eps).select(v_log.array() / scales.array(), Scalar(0)).matrix();
+}
+
+// Views of a scene's geometry as [k x N] matrices (no copies).
+template <class Scalar>
+Eigen::Map<const Matrix3X<Scalar>> means_matrix(const GaussianScene<Scalar>& s) {
+  return {s.means.data(), 3, Eigen::Index(s.size())};
+}
+template <class Scalar>
+Eigen::Map<const Matrix4X<Scalar>> rotations_matrix(const GaussianScene<Scalar>& s) {
+  return {s.rotations.data(), 4, Eigen::Index(s.size())};
+}
+template <class Scalar>
+Eigen::Map<const Matrix3X<Scalar>> log_scales_matrix(const GaussianScene<Scalar>& s) {
+  return {s.log_scales.data(), 3, Eigen::Index(s.size())};
+}
+
+}  // namespace orbitforge

@@ -1,0 +1,301 @@
+#pragma once
+// A fully connected ReLU network evaluated on many points at once, points as
+// COLUMNS (features x points, column-major): each layer is one matrix product
+// W [out x in] * A [in x n] over a chunk of points, which is the fast shape for
+// Eigen's GEMM, and a [3 x N] column-major matrix is exactly the [N][3] layout
+// of GaussianScene::means, so inputs and outputs need no transposes.
+//
+// Architecture (Deformable 3D Gaussians' deformation MLP when depth 8, width 256,
+// skip_layer 4):
+//   h_0 = relu(W_0 x + b_0)
+//   h_i = relu(W_i h_{i-1} + b_i)                 i = 1 .. depth-1
+//   h_i = relu(W_i [x; h_{i-1}] + b_i)            i = skip_layer + 1 (input first, as
+//                                                 torch.cat([x, h]) in that code)
+//   y   = W_o h_{depth-1} + b_o                   all linear heads stacked as one layer;
+//                                                 head k is rows [head_offset(k), +head_dims[k])
+//
+// Parameters live in ONE flat buffer (tiny-cuda-nn style) so that Adam runs over a
+// single array; per layer: W (rows x cols, column-major) then b (rows). Gradients
+// use the same layout.
+//
+// Threading: the N points are split into `threads` contiguous ranges, one task
+// each, processed in column chunks of `chunk_columns`. Parameter gradients are
+// accumulated per RANGE (not per worker) and summed in a fixed order, so results
+// are bitwise reproducible for a given thread count.
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <numeric>
+#include <random>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+
+namespace orbitforge {
+
+struct MlpParams {
+  int input_dims = 0;
+  int depth = 8;               // hidden layers (linear + ReLU), >= 1
+  int width = 256;
+  int skip_layer = -1;         // input concatenated to h_skip_layer (feeds layer skip_layer+1); -1: none
+  std::vector<int> head_dims;  // linear output heads on h_{depth-1}; at least one
+};
+
+template <class Scalar>
+class Mlp {
+ public:
+  using Matrix = Eigen::Matrix<Scalar, Eigen::Dynamic, Eigen::Dynamic>;  // features x points
+  using Vector = Eigen::Matrix<Scalar, Eigen::Dynamic, 1>;
+  using MatrixMap = Eigen::Map<Matrix>;
+  using ConstMatrixMap = Eigen::Map<const Matrix>;
+
+  struct Layer {
+    int rows = 0, cols = 0;       // W is rows x cols
+    std::size_t w = 0, b = 0;     // offsets of W and b in the flat buffer
+  };
+
+  // Forward activations (kept for the backward pass) and backward scratch.
+  // Owned by the caller and reused across calls; it only grows.
+  struct Workspace {
+    std::vector<Matrix> hidden;  // depth x [width x N], post-ReLU
+    Eigen::Index points = 0;
+    std::vector<Matrix> scratch_a, scratch_b;              // per range: [width x chunk]
+    std::vector<std::vector<Scalar>> range_grads;         // per range: [parameter_count]
+  };
+
+  // Column chunk processed per GEMM; measured in bench_mlp (512..2048 perform alike).
+  Eigen::Index chunk_columns = 1024;
+
+  explicit Mlp(const MlpParams& p) : p_(p) {
+    ensure(p.input_dims > 0, "Mlp: input_dims must be positive, got ", p.input_dims);
+    ensure(p.depth >= 1, "Mlp: depth must be >= 1, got ", p.depth);
+    ensure(p.width >= 1, "Mlp: width must be >= 1, got ", p.width);
+    ensure(p.skip_layer == -1 || (p.skip_layer >= 0 && p.skip_layer < p.depth - 1), "Mlp: skip_layer ",
+           p.skip_layer, " must be -1 or in [0, depth-1) = [0, ", p.depth - 1, ")");
+    ensure(!p.head_dims.empty(), "Mlp: at least one output head is needed");
+    std::size_t off = 0;
+    auto add = [&](int rows, int cols) {
+      Layer l;
+      l.rows = rows;
+      l.cols = cols;
+      l.w = off;
+      off += std::size_t(rows) * std::size_t(cols);
+      l.b = off;
+      off += std::size_t(rows);
+      layers_.push_back(l);
+    };
+    for (int i = 0; i < p.depth; ++i) {
+      const int in = i == 0 ? p.input_dims : (i == p.skip_layer + 1 && p.skip_layer >= 0 ? p.input_dims + p.width : p.width);
+      add(p.width, in);
+    }
+    int out = 0;
+    for (int h : p.head_dims) {
+      ensure(h > 0, "Mlp: head dimensions must be positive, got ", h);
+      head_offsets_.push_back(out);
+      out += h;
+    }
+    add(out, p.width);
+    params_.assign(off, Scalar(0));
+  }
+
+  const MlpParams& params() const { return p_; }
+  int input_dims() const { return p_.input_dims; }
+  int output_dims() const { return layers_.back().rows; }
+  int head_offset(int k) const { return head_offsets_.at(std::size_t(k)); }
+  const std::vector<Layer>& layers() const { return layers_; }
+  bool is_skip_input(int i) const { return p_.skip_layer >= 0 && i == p_.skip_layer + 1; }
+
+  std::size_t parameter_count() const { return params_.size(); }
+  std::vector<Scalar>& parameters() { return params_; }
+  const std::vector<Scalar>& parameters() const { return params_; }
+
+  // PyTorch nn.Linear default: W and b ~ U(-1/sqrt(fan_in), 1/sqrt(fan_in)) (that is
+  // kaiming_uniform with a = sqrt(5)). The heads' W and b are further multiplied by
+  // head_scale (1 = PyTorch default). Portable: uniform values come straight from
+  // mt19937 words, not from a library distribution.
+  void init(std::uint32_t seed, Scalar head_scale = Scalar(1)) {
+    std::mt19937 rng(seed);
+    auto uniform = [&rng](double bound) {
+      const double u = (double(rng()) + 0.5) / 4294967296.0;  // (0, 1)
+      return bound * (2.0 * u - 1.0);
+    };
+    for (std::size_t li = 0; li < layers_.size(); ++li) {
+      const Layer& l = layers_[li];
+      const double bound = 1.0 / std::sqrt(double(l.cols));
+      const double scale = li + 1 == layers_.size() ? double(head_scale) : 1.0;
+      for (std::size_t k = l.w; k < l.b + std::size_t(l.rows); ++k) params_[k] = Scalar(scale * uniform(bound));
+    }
+  }
+
+  ConstMatrixMap weight(int i) const {
+    const Layer& l = layers_[std::size_t(i)];
+    return ConstMatrixMap(params_.data() + l.w, l.rows, l.cols);
+  }
+  Eigen::Map<const Vector> bias(int i) const {
+    const Layer& l = layers_[std::size_t(i)];
+    return Eigen::Map<const Vector>(params_.data() + l.b, l.rows);
+  }
+
+  // in:  input [input_dims x N]
+  // out: out   [output_dims x N] (resized), ws.hidden filled for backward()
+  void forward(const Matrix& input, Workspace& ws, Matrix& out, int threads = 0) const {
+    ensure(input.rows() == p_.input_dims, "Mlp::forward: input has ", input.rows(), " rows, expected ",
+           p_.input_dims);
+    ensure(input.allFinite(), "Mlp::forward: input contains non-finite values");
+    const Eigen::Index n = input.cols();
+    ws.hidden.resize(std::size_t(p_.depth));
+    for (auto& h : ws.hidden)
+      if (h.rows() != p_.width || h.cols() != n) h.resize(p_.width, n);
+    ws.points = n;
+    if (out.rows() != output_dims() || out.cols() != n) out.resize(output_dims(), n);
+    const int ranges = range_count(n, threads);
+    parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
+      const auto [begin, end] = range(n, ranges, int(r));
+      for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
+        const Eigen::Index m = std::min(chunk_columns, end - c0);
+        forward_chunk(input, ws, out, c0, m);
+      }
+    });
+  }
+
+  // in:  input    [input_dims x N]   as given to forward()
+  //      ws                          from forward() on that input
+  //      v_out    [output_dims x N]  gradient of the loss w.r.t. the outputs
+  // out: v_params [parameter_count]  gradient w.r.t. the parameters, ACCUMULATED (+=)
+  //      v_input  [input_dims x N]   gradient w.r.t. the input, overwritten; nullptr: skip
+  void backward(const Matrix& input, Workspace& ws, const Matrix& v_out, Scalar* v_params, Matrix* v_input,
+                int threads = 0) const {
+    const Eigen::Index n = input.cols();
+    ensure(ws.points == n && ws.hidden.size() == std::size_t(p_.depth),
+           "Mlp::backward: workspace does not hold a forward pass over these ", n, " points");
+    ensure(v_out.rows() == output_dims() && v_out.cols() == n, "Mlp::backward: v_out is ", v_out.rows(), "x",
+           v_out.cols(), ", expected ", output_dims(), "x", n);
+    ensure(v_params != nullptr, "Mlp::backward: v_params is null");
+    if (v_input && (v_input->rows() != p_.input_dims || v_input->cols() != n)) v_input->resize(p_.input_dims, n);
+    const int ranges = range_count(n, threads);
+    const Eigen::Index chunk = std::min<Eigen::Index>(chunk_columns, std::max<Eigen::Index>(n, 1));
+    ws.scratch_a.resize(std::size_t(ranges));
+    ws.scratch_b.resize(std::size_t(ranges));
+    // With one range the gradients go straight into v_params (still accumulated).
+    if (ranges > 1) ws.range_grads.resize(std::size_t(ranges));
+    parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
+      Matrix& a = ws.scratch_a[r];
+      Matrix& b = ws.scratch_b[r];
+      const Eigen::Index rows = std::max(p_.width, output_dims());
+      if (a.rows() != rows || a.cols() != chunk) a.resize(rows, chunk);
+      if (b.rows() != rows || b.cols() != chunk) b.resize(rows, chunk);
+      Scalar* g = v_params;
+      if (ranges > 1) {
+        ws.range_grads[r].assign(params_.size(), Scalar(0));
+        g = ws.range_grads[r].data();
+      }
+      const auto [begin, end] = range(n, ranges, int(r));
+      for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
+        const Eigen::Index m = std::min(chunk_columns, end - c0);
+        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b);
+      }
+    });
+    if (ranges > 1) {
+      Eigen::Map<Vector> total(v_params, Eigen::Index(params_.size()));
+      for (int r = 0; r < ranges; ++r)
+        total += Eigen::Map<const Vector>(ws.range_grads[std::size_t(r)].data(), Eigen::Index(params_.size()));
+    }
+  }
+
+ private:
+  int range_count(Eigen::Index n, int threads) const {
+    const Eigen::Index by_size = (n + chunk_columns - 1) / chunk_columns;
+    return int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(resolve_threads(threads), by_size)));
+  }
+  static std::pair<Eigen::Index, Eigen::Index> range(Eigen::Index n, int ranges, int r) {
+    return {n * r / ranges, n * (r + 1) / ranges};
+  }
+
+  // gb += sum of the columns of a, in column order. (Eigen's rowwise().sum() picks
+  // its summation order by the runtime alignment of the data, which would make
+  // gradients differ from run to run in the last bits.)
+  template <class Block>
+  static void add_column_sum(const Block& a, Eigen::Map<Vector>& gb) {
+    for (Eigen::Index j = 0; j < a.cols(); ++j) gb += a.col(j);
+  }
+
+  void forward_chunk(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
+    for (int i = 0; i < p_.depth; ++i) {
+      const Layer& l = layers_[std::size_t(i)];
+      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+      auto z = ws.hidden[std::size_t(i)].middleCols(c0, m);
+      if (i == 0) {
+        z.noalias() = w * input.middleCols(c0, m);
+      } else if (is_skip_input(i)) {
+        z.noalias() = w.leftCols(p_.input_dims) * input.middleCols(c0, m);
+        z.noalias() += w.rightCols(p_.width) * ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
+      } else {
+        z.noalias() = w * ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
+      }
+      Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
+      z = (z.colwise() + b).cwiseMax(Scalar(0));
+    }
+    const Layer& l = layers_.back();
+    ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+    Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
+    auto y = out.middleCols(c0, m);
+    y.noalias() = w * ws.hidden.back().middleCols(c0, m);
+    y.colwise() += b;
+  }
+
+  void backward_chunk(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
+                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb) const {
+    // Heads.
+    {
+      const Layer& l = layers_.back();
+      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+      MatrixMap gw(g + l.w, l.rows, l.cols);
+      Eigen::Map<Vector> gb(g + l.b, l.rows);
+      const auto vy = v_out.middleCols(c0, m);
+      gw.noalias() += vy * ws.hidden.back().middleCols(c0, m).transpose();
+      add_column_sum(vy, gb);
+      sa.topLeftCorner(p_.width, m).noalias() = w.transpose() * vy;  // v_h_{depth-1}
+    }
+    if (v_input) v_input->middleCols(c0, m).setZero();
+    Matrix* cur = &sa;
+    Matrix* nxt = &sb;
+    for (int i = p_.depth - 1; i >= 0; --i) {
+      const Layer& l = layers_[std::size_t(i)];
+      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+      MatrixMap gw(g + l.w, l.rows, l.cols);
+      Eigen::Map<Vector> gb(g + l.b, l.rows);
+      auto dz = cur->topLeftCorner(p_.width, m);
+      const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
+      // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
+      dz.array() = (h.array() > Scalar(0)).select(dz.array(), Scalar(0));
+      add_column_sum(dz, gb);
+      const auto x = input.middleCols(c0, m);
+      if (i == 0) {
+        gw.noalias() += dz * x.transpose();
+        if (v_input) v_input->middleCols(c0, m).noalias() += w.transpose() * dz;
+        break;
+      }
+      const auto hp = ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
+      auto dh = nxt->topLeftCorner(p_.width, m);
+      if (is_skip_input(i)) {
+        gw.leftCols(p_.input_dims).noalias() += dz * x.transpose();
+        gw.rightCols(p_.width).noalias() += dz * hp.transpose();
+        if (v_input) v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
+        dh.noalias() = w.rightCols(p_.width).transpose() * dz;
+      } else {
+        gw.noalias() += dz * hp.transpose();
+        dh.noalias() = w.transpose() * dz;
+      }
+      std::swap(cur, nxt);
+    }
+  }
+
+  MlpParams p_;
+  std::vector<Layer> layers_;
+  std::vector<int> head_offsets_;
+  std::vector<Scalar> params_;
+};
+
+}  // namespace orbitforge
