@@ -1,0 +1,179 @@
+#pragma once
+// orbit.json: the canonical orbit, its support bins, the completion layout and the
+// fitting diagnostics, as fit_orbit writes it and render_orbit / the pipeline read
+// it. Everything is in the input cameras' world frame; camera poses use the
+// library's convention x_cam = R x_world + t (OpenCV axes), R written as three rows.
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "orbitforge/geometry/completion_layout.hpp"
+#include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/metrics/coverage.hpp"
+
+namespace orbitforge {
+
+namespace orbit_file_detail {
+
+template <class Derived>
+nlohmann::json vec_json(const Eigen::MatrixBase<Derived>& v) {
+  nlohmann::json a = nlohmann::json::array();
+  for (int i = 0; i < v.size(); ++i) a.push_back(double(v[i]));
+  return a;
+}
+
+template <class Scalar>
+nlohmann::json camera_json(int index, Scalar azimuth_deg, const Camera<Scalar>& c) {
+  nlohmann::json R = nlohmann::json::array();
+  for (int r = 0; r < 3; ++r) R.push_back(vec_json(c.R.row(r).transpose()));
+  const auto& k = c.intrinsics;
+  return {{"index", index},          {"azimuth_deg", double(azimuth_deg)},
+          {"width", k.width},        {"height", k.height},
+          {"fx", double(k.fx)},      {"fy", double(k.fy)},
+          {"cx", double(k.cx)},      {"cy", double(k.cy)},
+          {"R", R},                  {"t", vec_json(c.t)}};
+}
+
+}  // namespace orbit_file_detail
+
+// Azimuths (degrees) of the canonical views, for coverage of the canonical orbit.
+template <class Scalar>
+std::vector<Scalar> canonical_azimuths(const OrbitFit<Scalar>& fit) {
+  std::vector<Scalar> az;
+  for (int i = 0; i < fit.views; ++i) az.push_back(fit.orbit.azimuth_deg(i, fit.views));
+  return az;
+}
+
+template <class Scalar>
+nlohmann::json orbit_json(const OrbitFit<Scalar>& fit, const CompletionLayout& layout) {
+  using orbit_file_detail::vec_json;
+  const auto& g = fit.orbit;
+  const auto& k = fit.intrinsics;
+  nlohmann::json j;
+  j["orbit"] = {{"center", vec_json(g.center)},
+                {"normal", vec_json(g.normal)},
+                {"e1", vec_json(g.e1)},
+                {"e2", vec_json(g.e2)},
+                {"radius", double(g.radius)},
+                {"theta0_deg", double(g.theta0_deg)},
+                {"direction", g.direction},
+                {"look_at", vec_json(g.look_at)},
+                {"elevation_offset_deg", double(g.elevation_offset_deg)},
+                {"views", fit.views},
+                {"width", k.width},
+                {"height", k.height},
+                {"fx", double(k.fx)},
+                {"fy", double(k.fy)},
+                {"cx", double(k.cx)},
+                {"cy", double(k.cy)}};
+  const auto& d = fit.diagnostics;
+  nlohmann::json skipped = nlohmann::json::array();
+  for (std::size_t i = 0; i < d.cameras_skipped.size(); ++i)
+    skipped.push_back(d.cameras_skipped[i]);
+  nlohmann::json reasons = nlohmann::json::object();
+  for (std::size_t i = 0; i < d.cameras_skipped.size() && i < d.skipped_reasons.size(); ++i)
+    reasons[d.cameras_skipped[i]] = d.skipped_reasons[i];
+  j["diagnostics"] = {{"cameras_used", d.cameras_used},
+                      {"cameras_skipped", skipped},
+                      {"skipped_reasons", reasons},
+                      {"source_span_deg", double(d.source_span_deg)},
+                      {"circle_rmse", double(d.circle_rmse)},
+                      {"radius_std", double(d.radius_std)},
+                      {"height_std", double(d.height_std)},
+                      {"lookat_error_deg", double(d.lookat_error_deg)},
+                      {"convention", d.convention},
+                      {"normal_rule", d.normal_rule},
+                      {"observed_bins", d.observed_bins},
+                      {"gap_bins", d.gap_bins}};
+  j["support"] = {{"observed", fit.support.observed}, {"arc", fit.support.arc}, {"gap", fit.support.gap}};
+  nlohmann::json source = nlohmann::json::array();
+  for (const auto& s : fit.source)
+    source.push_back({{"name", s.name}, {"bin", s.bin}, {"azimuth_deg", double(s.azimuth_deg)}});
+  j["source"] = source;
+  nlohmann::json anchors = nlohmann::json::array();
+  for (const auto& a : layout.anchors)
+    anchors.push_back({{"synthetic", a.synthetic}, {"canonical", a.canonical}, {"name", a.name}});
+  j["layout"] = {{"frames", layout.frames},
+                 {"start", layout.start},
+                 {"synthetic_to_canonical", layout.synthetic_to_canonical},
+                 {"anchors", anchors},
+                 {"anchor_index_error", {{"mean", layout.anchor_error_mean}, {"max", layout.anchor_error_max}}}};
+  const auto az = canonical_azimuths(fit);
+  const auto cov = orbit_coverage(az);
+  j["coverage"] = {{"A", double(cov.span_deg)}, {"M", double(cov.monotone)}, {"closed", cov.closed}};
+  nlohmann::json cams = nlohmann::json::array();
+  for (int i = 0; i < fit.views; ++i) cams.push_back(orbit_file_detail::camera_json(i, az[i], fit.cameras[i]));
+  j["cameras"] = cams;
+  return j;
+}
+
+template <class Scalar>
+void write_orbit_json(const std::string& path, const OrbitFit<Scalar>& fit, const CompletionLayout& layout) {
+  write_file_atomic(path, orbit_json(fit, layout).dump(1) + "\n");
+}
+
+// The canonical cameras of an orbit.json (or of any {"cameras": [...]} file),
+// checked: each needs width, height, fx, fy, cx, cy, R (3x3) and t (3), finite.
+template <class Scalar>
+std::vector<Camera<Scalar>> cameras_from_json(const nlohmann::json& j, const std::string& file_name) {
+  const nlohmann::json* list = &j;
+  if (j.is_object() && j.contains("cameras")) list = &j["cameras"];
+  nlohmann::json single;  // one bare camera object is a list of one
+  if (list->is_object()) {
+    single = nlohmann::json::array({*list});
+    list = &single;
+  }
+  ensure(list->is_array(), file_name, ": expected a camera object, a list of cameras or {\"cameras\": [...]}");
+  std::vector<Camera<Scalar>> out;
+  for (std::size_t i = 0; i < list->size(); ++i) {
+    const auto& c = (*list)[i];
+    const std::string where = file_name + ": camera " + std::to_string(i);
+    auto num = [&](const char* key) {
+      ensure(c.contains(key) && c[key].is_number(), where, ": missing or non-numeric \"", key, "\"");
+      const double v = c[key].get<double>();
+      ensure(std::isfinite(v), where, ": \"", key, "\" is not finite");
+      return v;
+    };
+    Camera<Scalar> cam;
+    cam.intrinsics.width = int(num("width"));
+    cam.intrinsics.height = int(num("height"));
+    ensure(cam.intrinsics.width > 0 && cam.intrinsics.height > 0, where, ": image size must be positive");
+    cam.intrinsics.fx = Scalar(num("fx"));
+    cam.intrinsics.fy = Scalar(num("fy"));
+    cam.intrinsics.cx = Scalar(num("cx"));
+    cam.intrinsics.cy = Scalar(num("cy"));
+    ensure(cam.intrinsics.fx > 0 && cam.intrinsics.fy > 0, where, ": focal lengths must be positive");
+    ensure(c.contains("R") && c["R"].is_array() && c["R"].size() == 3, where, ": \"R\" must be 3 rows");
+    ensure(c.contains("t") && c["t"].is_array() && c["t"].size() == 3, where, ": \"t\" must have 3 values");
+    for (int r = 0; r < 3; ++r) {
+      const auto& row = c["R"][r];
+      ensure(row.is_array() && row.size() == 3, where, ": \"R\" row ", r, " must have 3 values");
+      for (int k = 0; k < 3; ++k) {
+        ensure(row[k].is_number(), where, ": \"R\"[", r, "][", k, "] is not a number");
+        cam.R(r, k) = Scalar(row[k].get<double>());
+      }
+      ensure(c["t"][r].is_number(), where, ": \"t\"[", r, "] is not a number");
+      cam.t[r] = Scalar(c["t"][r].get<double>());
+    }
+    ensure(cam.R.allFinite() && cam.t.allFinite(), where, ": non-finite pose");
+    const Scalar dev = (cam.R * cam.R.transpose() - Eigen::Matrix<Scalar, 3, 3>::Identity()).cwiseAbs().maxCoeff();
+    ensure(dev < Scalar(1e-3) && cam.R.determinant() > 0, where, ": \"R\" is not a rotation");
+    out.push_back(cam);
+  }
+  return out;
+}
+
+template <class Scalar>
+std::vector<Camera<Scalar>> read_cameras_json(const std::string& path) {
+  const std::string text = read_file_bytes(path);
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
+    fail(path, ": not valid JSON: ", e.what());
+  }
+  return cameras_from_json<Scalar>(j, path);
+}
+
+}  // namespace orbitforge
