@@ -358,6 +358,14 @@ TEST_CASE("COLMAP text: bad input is a clear error naming file and line", "[io][
   require_error([&] { read_colmap_text(tmp.str()); }, {tmp.str("images.txt"), "does not exist"});
   require_error([&] { find_colmap_model_dir(tmp.str()); }, {"no COLMAP model found", tmp.str(), "sparse/0"});
   require_error([&] { read_colmap_model(tmp.str("nowhere")); }, {"no COLMAP model found", "nowhere"});
+
+  // The writer refuses what the reader would reject, naming the file.
+  auto cams = orbitforge_test::random_frame_cameras<double>(3, 8);
+  cams[1].camera.intrinsics.fx = 0;
+  require_error([&] { write_colmap_text(tmp.str("out"), cams); }, {"cameras.txt", "frame 1", "focal"});
+  cams = orbitforge_test::random_frame_cameras<double>(3, 8);
+  cams[2].name = "two\nlines";
+  require_error([&] { write_colmap_text(tmp.str("out"), cams); }, {"images.txt", "frame 2", "cannot be stored"});
 }
 
 TEMPLATE_TEST_CASE("COLMAP non-finite poses become invalid frames, kept in order", "[io][colmap]", float, double) {
@@ -377,6 +385,19 @@ TEMPLATE_TEST_CASE("COLMAP non-finite poses become invalid frames, kept in order
   CHECK(cams[3].valid);
   for (const auto& f : cams) CHECK(f.camera.is_finite());  // never NaN, even when invalid
   CHECK(cams[3].camera.t.x() == TestType(1));
+
+  // Huge quaternion components still give a rotation (the norm must not overflow).
+  m.images = parse_colmap_images_text("1 1e300 0 0 1e300 0 0 0 1 a.png\n", "images.txt");
+  const auto big = colmap_frame_cameras<TestType>(m);
+  REQUIRE(big.size() == 1);
+  CHECK(std::abs(big[0].camera.R(0, 1) + TestType(1)) < 1e-6);  // 90 degrees about z
+  // Finite in double but beyond float: an error rather than an inf in a valid camera.
+  m.images = parse_colmap_images_text("1 1 0 0 0 1e300 0 0 1 a.png\n", "images.txt");
+  if (std::is_same<TestType, float>::value) {
+    require_error([&] { colmap_frame_cameras<TestType>(m); }, {"image 1 (a.png)", "do not fit the precision"});
+  } else {
+    CHECK(colmap_frame_cameras<TestType>(m)[0].camera.t.x() == 1e300);
+  }
 }
 
 TEMPLATE_TEST_CASE("COLMAP shared data: v3d and Middlebury models load", "[io][colmap][data]", float, double) {

@@ -168,4 +168,7 @@ TEST_CASE("transforms.json: bad input is a clear error naming the file", "[io][t
   cams[1].camera.t.x() = std::nan("");
   require_error([&] { write_transforms_json(tmp.str("out.json"), cams); }, {"out.json", "frame 1", "non-finite"});
   CHECK_FALSE(std::filesystem::exists(tmp.str("out.json")));
+  cams = orbitforge_test::random_frame_cameras<double>(2, 5);
+  cams[0].camera.intrinsics.width = 0;
+  require_error([&] { write_transforms_json(tmp.str("out.json"), cams); }, {"out.json", "frame 0", "positive image size"});
 }

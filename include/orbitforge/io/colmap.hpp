@@ -13,8 +13,8 @@
 //    estimators that only export poses are common.
 //  - Non-finite pose values (nan/inf in qvec or tvec) are kept in ColmapImage;
 //    colmap_frame_cameras turns such an image into a FrameCamera with
-//    valid = false (identity pose, never NaN). A finite quaternion of (near)
-//    zero norm, an image referencing a missing camera, unknown camera models,
+//    valid = false (identity pose, never NaN). Finite values too large for
+//    the precision S are an error. A finite quaternion of (near) zero norm, an image referencing a missing camera, unknown camera models,
 //    wrong parameter counts, non-finite or non-positive intrinsics and
 //    duplicate ids are errors naming the file and the line / record.
 //  - colmap_intrinsics keeps fx, fy, cx, cy only: lens distortion parameters
@@ -135,12 +135,19 @@ void check_colmap_camera(const ColmapCamera& c, const ColmapCameraModelInfo& inf
          ": focal length must be positive");
 }
 
+// Norm without overflow or underflow for extreme components.
+inline double colmap_quaternion_norm(const Eigen::Vector4d& q) {
+  const double s = q.cwiseAbs().maxCoeff();
+  return s > 0 ? s * (q / s).norm() : 0.0;
+}
+
 template <class Where>
 void check_colmap_quaternion(const ColmapImage& im, const Where& where) {
   // Non-finite poses are kept (-> FrameCamera::valid = false); a finite
   // quaternion without a direction is a corrupt record.
   if (im.qvec.allFinite()) {
-    ensure(im.qvec.norm() > 1e-12, where, ": image ", im.id, " (", im.name, "): quaternion has zero norm");
+    ensure(colmap_quaternion_norm(im.qvec) > 1e-12, where, ": image ", im.id, " (", im.name,
+           "): quaternion has zero norm");
   }
 }
 
@@ -437,11 +444,15 @@ std::vector<FrameCamera<S>> colmap_frame_cameras(const ColmapModel& model) {
     f.camera.intrinsics = colmap_intrinsics<S>(cam->second);
     f.valid = im.qvec.allFinite() && im.tvec.allFinite();
     if (f.valid) {
-      ensure(im.qvec.norm() > 1e-12, "COLMAP image ", id, " (", im.name, "): quaternion has zero norm");
-      const Eigen::Quaterniond q(im.qvec[0], im.qvec[1], im.qvec[2], im.qvec[3]);
+      ensure(detail::colmap_quaternion_norm(im.qvec) > 1e-12, "COLMAP image ", id, " (", im.name,
+             "): quaternion has zero norm");
+      const Eigen::Vector4d qs = im.qvec / im.qvec.cwiseAbs().maxCoeff();  // no overflow in the norm
+      const Eigen::Quaterniond q(qs[0], qs[1], qs[2], qs[3]);
       f.camera.R = q.normalized().toRotationMatrix().template cast<S>();
       f.camera.t = im.tvec.template cast<S>();
     }
+    ensure(f.camera.is_finite(), "COLMAP image ", id, " (", im.name,
+           "): camera values do not fit the precision (too large)");
     out.push_back(std::move(f));
   }
   std::stable_sort(out.begin(), out.end(),
@@ -479,8 +490,11 @@ void write_colmap_text(const std::string& model_dir, const std::vector<FrameCame
                trim_view(f.name).size() == f.name.size(),
            where, ": frame ", i, " name '", f.name,
            "' cannot be stored (empty, a line break, or leading/trailing white space)");
-    ++id;
     const Intrinsics<double> k = f.camera.intrinsics.template cast<double>();
+    ensure(k.width > 0 && k.height > 0 && k.fx > 0 && k.fy > 0, (dir / "cameras.txt").string(), ": frame ", i, " (",
+           f.name, ") needs a positive image size and focal lengths, has ", k.width, "x", k.height, ", fx ", k.fx,
+           ", fy ", k.fy);
+    ++id;
     cameras << id << " PINHOLE " << k.width << ' ' << k.height << ' ' << k.fx << ' ' << k.fy << ' ' << k.cx << ' '
             << k.cy << '\n';
     Eigen::Quaterniond q(f.camera.R.template cast<double>());

@@ -213,6 +213,10 @@ std::string transforms_json_text(const std::vector<FrameCamera<S>>& cams, const 
     if (!f.valid) continue;
     ensure(f.camera.is_finite(), file_name, ": cannot write frame ", i, " (", f.name, ") has non-finite values");
     const Camerad c = f.camera.template cast<double>();
+    const Intrinsics<double>& k = c.intrinsics;
+    ensure(k.width > 0 && k.height > 0 && k.fx > 0 && k.fy > 0, file_name, ": cannot write frame ", i, " (", f.name,
+           "): needs a positive image size and focal lengths, has ", k.width, "x", k.height, ", fx ", k.fx, ", fy ",
+           k.fy);
     if (!have_top) {
       intrinsics_json(root, c.intrinsics);
       have_top = true;
