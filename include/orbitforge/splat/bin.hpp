@@ -16,6 +16,7 @@
 // Built with a counting pass and a prefix sum into caller-owned buffers that are
 // reused across frames: no allocation once the workspace has grown.
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -75,7 +76,9 @@ struct BinWorkspace {
   // Sort scratch (kept so that frames after the first do not allocate).
   using Key = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
   std::vector<Key> keys_, keys_tmp_;
-  std::vector<std::int32_t> idx_tmp_;
+  std::vector<std::int32_t> perm_, idx_tmp_;
+  std::vector<SplatRecord<Scalar>> packed_;
+  std::vector<std::array<std::int32_t, 5>> packed_boxes_, boxes_;  // tile range x0, y0, x1, y1; index
   std::vector<std::uint32_t> cursor_;
 };
 
@@ -142,44 +145,57 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.grid = TileGrid(width, height, tile_size);
   const TileGrid& g = ws.grid;
 
-  // Visible Gaussians and their sort keys (index order, so the stable sort breaks
-  // depth ties by index).
+  // One sequential pass over the input: visible Gaussians are packed (in index
+  // order) with their sort keys and tile ranges; the sort then permutes whole
+  // records, so the input arrays are never read in random order.
   using Key = typename BinWorkspace<Scalar>::Key;
-  ws.order.clear();
+  const int ts = g.tile_size;
   ws.keys_.clear();
+  ws.perm_.clear();
+  ws.packed_.clear();
+  ws.packed_boxes_.clear();
   for (std::size_t i = 0; i < n; ++i) {
     if (s.radius[i] <= 0) continue;
-    if (s.rect_x0[i] > s.rect_x1[i] || s.rect_y0[i] > s.rect_y1[i]) continue;
-    ensure(s.rect_x0[i] >= 0 && s.rect_y0[i] >= 0 && s.rect_x1[i] < width && s.rect_y1[i] < height,
-           "bin_splats: Gaussian ", i, " has rect [", s.rect_x0[i], ",", s.rect_x1[i], "]x[", s.rect_y0[i], ",",
-           s.rect_y1[i], "] outside the ", width, "x", height, " image");
-    const Scalar f[] = {s.mean_x[i], s.mean_y[i], s.conic_a[i], s.conic_b[i], s.conic_c[i], s.opacity[i],
-                        s.color_r[i], s.color_g[i], s.color_b[i], s.depth[i]};
-    for (Scalar v : f) ensure(std::isfinite(v), "bin_splats: visible Gaussian ", i, " has a non-finite field");
-    ws.order.push_back(std::int32_t(i));
-    ws.keys_.push_back(detail::sortable_key<Key>(s.depth[i]));
-  }
-  detail::radix_sort_stable(ws.keys_, ws.order, ws.keys_tmp_, ws.idx_tmp_);
-  const auto t1 = clock::now();
-
-  // Pack in rank order and count tile entries.
-  const std::size_t v = ws.order.size();
-  ws.records.resize(v);
-  ws.tile_offsets.assign(std::size_t(g.tile_count()) + 1, 0u);
-  const int ts = g.tile_size;
-  for (std::size_t r = 0; r < v; ++r) {
-    const std::size_t i = std::size_t(ws.order[r]);
-    SplatRecord<Scalar>& rec = ws.records[r];
+    const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
+    if (x0 > x1 || y0 > y1) continue;
+    ensure(x0 >= 0 && y0 >= 0 && x1 < width && y1 < height, "bin_splats: Gaussian ", i, " has rect [", x0, ",", x1,
+           "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
+    SplatRecord<Scalar> rec;
     rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
     rec.conic_a = s.conic_a[i]; rec.conic_b = s.conic_b[i]; rec.conic_c = s.conic_c[i];
     rec.opacity = s.opacity[i];
     rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
     rec.depth = s.depth[i];
-    rec.x_lo = Scalar(s.rect_x0[i]); rec.x_hi = Scalar(s.rect_x1[i] + 1);
-    rec.y_lo = Scalar(s.rect_y0[i]); rec.y_hi = Scalar(s.rect_y1[i] + 1);
+    rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
+    rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
     rec.pad_[0] = rec.pad_[1] = Scalar(0);
-    for (int ty = s.rect_y0[i] / ts; ty <= s.rect_y1[i] / ts; ++ty)
-      for (int tx = s.rect_x0[i] / ts; tx <= s.rect_x1[i] / ts; ++tx) ++ws.tile_offsets[std::size_t(ty) * g.tiles_x + tx + 1];
+    bool finite = true;
+    for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
+    ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
+    ws.perm_.push_back(std::int32_t(ws.packed_.size()));
+    ws.packed_.push_back(rec);
+    ws.packed_boxes_.push_back({{x0 / ts, y0 / ts, x1 / ts, y1 / ts, std::int32_t(i)}});
+    ws.keys_.push_back(detail::sortable_key<Key>(rec.depth));
+  }
+  detail::radix_sort_stable(ws.keys_, ws.perm_, ws.keys_tmp_, ws.idx_tmp_);
+  const auto t1 = clock::now();
+
+  // Permute into rank order and count tile entries.
+  const std::size_t v = ws.perm_.size();
+  ws.records.resize(v);
+  ws.order.resize(v);
+  ws.boxes_.resize(v);
+  ws.tile_offsets.assign(std::size_t(g.tile_count()) + 1, 0u);
+  std::uint32_t* counts = ws.tile_offsets.data() + 1;
+  const int tiles_x = g.tiles_x;
+  for (std::size_t r = 0; r < v; ++r) {
+    const std::size_t p = std::size_t(ws.perm_[r]);
+    ws.records[r] = ws.packed_[p];
+    const auto box = ws.packed_boxes_[p];
+    ws.boxes_[r] = box;
+    ws.order[r] = box[4];
+    for (int ty = box[1]; ty <= box[3]; ++ty)
+      for (int tx = box[0]; tx <= box[2]; ++tx) ++counts[ty * tiles_x + tx];
   }
   // Prefix sum, then fill in rank order so each tile's list comes out front to back.
   std::uint64_t total = 0;
@@ -192,11 +208,12 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   }
   ws.tile_ranks.resize(std::size_t(total));
   ws.cursor_.assign(ws.tile_offsets.begin(), ws.tile_offsets.end() - 1);
+  std::uint32_t* cursor = ws.cursor_.data();
+  std::int32_t* out = ws.tile_ranks.data();
   for (std::size_t r = 0; r < v; ++r) {
-    const std::size_t i = std::size_t(ws.order[r]);
-    for (int ty = s.rect_y0[i] / ts; ty <= s.rect_y1[i] / ts; ++ty)
-      for (int tx = s.rect_x0[i] / ts; tx <= s.rect_x1[i] / ts; ++tx)
-        ws.tile_ranks[ws.cursor_[std::size_t(ty) * g.tiles_x + tx]++] = std::int32_t(r);
+    const auto box = ws.boxes_[r];
+    for (int ty = box[1]; ty <= box[3]; ++ty)
+      for (int tx = box[0]; tx <= box[2]; ++tx) out[cursor[ty * tiles_x + tx]++] = std::int32_t(r);
   }
   const auto t2 = clock::now();
   ws.sort_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();

@@ -1,0 +1,225 @@
+// Renderer speed: forward and backward at 256x256, 512x512 and 896x512 with 10k,
+// 100k and 300k Gaussians, 1 and 2 threads, float; plus fast_exp's speed and its
+// error against the exact path.
+//
+// Scenes are random but shaped like real ones: Gaussians in a box in front of the
+// camera, anisotropic, opacities spread over (0, 1), SH degree 3, sized so that
+// 512x512 with 100k Gaussians blends about 35 Gaussians per pixel.
+//
+// Counters (per frame): contrib_px (contributions per pixel), fwd_ns_contrib and
+// bwd_ns_contrib (rasterizer forward / backward time per contribution, ns),
+// project_ms, sort_ms, bin_ms, raster_ms, and for backward the split between the
+// per-pixel and per-Gaussian stages.
+//
+//   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <map>
+#include <memory>
+#include <random>
+#include <ctime>
+
+#include "orbitforge/splat/renderer.hpp"
+
+using namespace orbitforge;
+
+namespace {
+
+GaussianScenef make_scene(std::size_t n) {
+  std::mt19937 rng(1234);
+  std::uniform_real_distribution<float> u(-1.f, 1.f), u01(0.f, 1.f);
+  std::normal_distribution<float> nd;
+  GaussianScenef s;
+  s.resize(n, 3);
+  // Scale with density so that the depth complexity per pixel stays realistic.
+  const float base = std::log(0.03f * std::sqrt(100000.f / float(n)));
+  for (std::size_t i = 0; i < n; ++i) {
+    s.means[3 * i + 0] = 1.1f * u(rng);
+    s.means[3 * i + 1] = 1.1f * u(rng);
+    s.means[3 * i + 2] = 0.8f * u(rng);
+    for (int a = 0; a < 4; ++a) s.rotations[4 * i + a] = nd(rng);
+    for (int a = 0; a < 3; ++a) s.log_scales[3 * i + a] = base + 0.5f * u(rng);
+    s.opacity_logits[i] = 4.f + 2.f * nd(rng);
+  }
+  for (std::size_t j = 0; j < s.sh.size(); ++j) s.sh[j] = (j % 48 < 3 ? 0.8f : 0.15f) * u(rng);
+  return s;
+}
+
+const GaussianScenef& scene(std::size_t n) {
+  static std::map<std::size_t, std::unique_ptr<GaussianScenef>> cache;
+  auto& p = cache[n];
+  if (!p) p = std::make_unique<GaussianScenef>(make_scene(n));
+  return *p;
+}
+
+Cameraf camera(int w, int h) {
+  Cameraf c;
+  const float f = 1.1f * float(h);  // vertical fov ~ 49 degrees
+  c.intrinsics = {f, f, 0.5f * float(w), 0.5f * float(h), w, h};
+  c.t = Eigen::Vector3f(0, 0, 3.2f);
+  return c;
+}
+
+// CPU time of the calling thread: on a shared machine wall time also counts other
+// people's work; with threads = 1 every stage runs on this thread.
+double thread_cpu_ms() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
+}
+
+void set_counters(benchmark::State& state, const RenderStats& st, int w, int h) {
+  state.counters["contrib_px"] = double(st.contributions) / (double(w) * h);
+  state.counters["evaluated_px"] = double(st.pairs_evaluated) / (double(w) * h);
+  state.counters["visible"] = double(st.gaussians_visible);
+  state.counters["project_ms"] = st.project_ms;
+  state.counters["sort_ms"] = st.sort_ms;
+  state.counters["bin_ms"] = st.bin_ms;
+  state.counters["raster_ms"] = st.raster_ms;
+  state.counters["fwd_ns_contrib"] = st.raster_ms * 1e6 / double(std::max<std::uint64_t>(1, st.contributions));
+}
+
+// Args: width, height, gaussians, threads, fast_exp
+void BM_Forward(benchmark::State& state) {
+  const int w = int(state.range(0)), h = int(state.range(1));
+  const auto& s = scene(std::size_t(state.range(2)));
+  RenderParams<float> p;
+  p.threads = int(state.range(3));
+  p.fast_exp = state.range(4) != 0;
+  Renderer<float> r(p);
+  const auto cam = camera(w, h);
+  r.render(SceneView<float>(s), cam);  // first frame allocates
+  RenderStats sum;
+  double cpu = 0;
+  for (auto _ : state) {
+    const double c0 = thread_cpu_ms();
+    const auto& out = r.render(SceneView<float>(s), cam);
+    cpu += thread_cpu_ms() - c0;
+    benchmark::DoNotOptimize(out.color.data.data());
+    sum.project_ms += out.frame.project_ms;
+    sum.sort_ms += out.frame.sort_ms;
+    sum.bin_ms += out.frame.bin_ms;
+    sum.raster_ms += out.frame.raster_ms;
+    sum.contributions = out.frame.contributions;
+    sum.pairs_evaluated = out.frame.pairs_evaluated;
+    sum.gaussians_visible = out.frame.gaussians_visible;
+  }
+  const double k = 1.0 / double(state.iterations());
+  sum.project_ms *= k; sum.sort_ms *= k; sum.bin_ms *= k; sum.raster_ms *= k;
+  set_counters(state, sum, w, h);
+  state.counters["main_thread_cpu_ms"] = cpu * k;
+  if (p.fast_exp) {
+    // Error of the fast path against the exact one on this frame.
+    Renderer<float> exact(RenderParams<float>{});
+    const auto& a = exact.render(SceneView<float>(s), cam);
+    const auto& b = r.render(SceneView<float>(s), cam);
+    double m = 0, mean = 0;
+    for (std::size_t i = 0; i < a.color.data.size(); ++i) {
+      const double d = std::abs(double(a.color.data[i]) - double(b.color.data[i]));
+      m = std::max(m, d);
+      mean += d;
+    }
+    state.counters["max_abs_err"] = m;
+    state.counters["mean_abs_err"] = mean / double(a.color.data.size());
+  }
+}
+
+// Args: width, height, gaussians, threads. dL/dcolour = 1 everywhere plus alpha and depth terms.
+void BM_Backward(benchmark::State& state) {
+  const int w = int(state.range(0)), h = int(state.range(1));
+  const auto& s = scene(std::size_t(state.range(2)));
+  RenderParams<float> p;
+  p.threads = int(state.range(3));
+  Renderer<float> r(p);
+  const auto cam = camera(w, h);
+  const auto& out = r.render(SceneView<float>(s), cam);
+  Imagef v_color(w, h, 3, 1.f), v_alpha(w, h, 1, 0.5f), v_depth(w, h, 1, 0.01f);
+  r.backward(SceneView<float>(s), cam, v_color, &v_alpha, &v_depth);  // first call allocates
+  double raster_ms = 0, project_ms = 0;
+  for (auto _ : state) {
+    const auto& g = r.backward(SceneView<float>(s), cam, v_color, &v_alpha, &v_depth);
+    benchmark::DoNotOptimize(g.means.data());
+    raster_ms += r.output().frame.backward_raster_ms;
+    project_ms += r.output().frame.backward_project_ms;
+  }
+  const double k = 1.0 / double(state.iterations());
+  state.counters["contrib_px"] = double(out.frame.contributions) / (double(w) * h);
+  state.counters["bwd_raster_ms"] = raster_ms * k;
+  state.counters["bwd_project_ms"] = project_ms * k;
+  state.counters["bwd_ns_contrib"] = raster_ms * k * 1e6 / double(std::max<std::uint64_t>(1, out.frame.contributions));
+}
+
+// The per-pixel kernels alone, one thread, timed in thread CPU time.
+// Args: width, height, gaussians, fast_exp.
+void BM_RasterKernels(benchmark::State& state) {
+  const int w = int(state.range(0)), h = int(state.range(1));
+  const auto& s = scene(std::size_t(state.range(2)));
+  ProjectedSplats<float> splats;
+  project_scene(SceneView<float>(s), camera(w, h), ProjectionParams{}, splats, nullptr, 1);
+  BinWorkspace<float> bins;
+  RasterWorkspace<float> ws;
+  RasterOutput<float> out;
+  RasterGradOutput<float> grad;
+  RasterParams<float> rp;
+  rp.threads = 1;
+  rp.fast_exp = state.range(3) != 0;
+  Imagef v_color(w, h, 3, 1.f), v_alpha(w, h, 1, 0.5f), v_depth(w, h, 1, 0.01f);
+  bin_splats(splats, w, h, 16, bins);  // warm-up: the first frame allocates
+  rasterize(bins, rp, out, ws);
+  rasterize_backward(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
+  double bin = 0, fwd = 0, bwd = 0;
+  for (auto _ : state) {
+    const double t0 = thread_cpu_ms();
+    bin_splats(splats, w, h, 16, bins);
+    const double t1 = thread_cpu_ms();
+    rasterize(bins, rp, out, ws);
+    const double t2 = thread_cpu_ms();
+    rasterize_backward(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
+    const double t3 = thread_cpu_ms();
+    bin += t1 - t0; fwd += t2 - t1; bwd += t3 - t2;
+  }
+  const double k = 1.0 / double(state.iterations());
+  const double c = double(std::max<std::uint64_t>(1, out.stats.contributions));
+  state.counters["contrib_px"] = c / (double(w) * h);
+  state.counters["bin_cpu_ms"] = bin * k;
+  state.counters["fwd_cpu_ms"] = fwd * k;
+  state.counters["bwd_cpu_ms"] = bwd * k;
+  state.counters["fwd_ns_contrib"] = fwd * k * 1e6 / c;
+  state.counters["bwd_ns_contrib"] = bwd * k * 1e6 / c;
+}
+
+void sizes(benchmark::internal::Benchmark* b, bool with_fast) {
+  for (auto wh : {std::pair<int, int>{256, 256}, {512, 512}, {896, 512}})
+    for (int n : {10000, 100000, 300000})
+      for (int threads : {1, 2}) {
+        if (with_fast) b->Args({wh.first, wh.second, n, threads, 0});
+        else b->Args({wh.first, wh.second, n, threads});
+      }
+  if (with_fast) b->Args({512, 512, 100000, 1, 1});
+}
+
+}  // namespace
+
+BENCHMARK(BM_Forward)
+    ->ArgNames({"w", "h", "n", "threads", "fast"})
+    ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, true); })
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.3);
+BENCHMARK(BM_RasterKernels)
+    ->ArgNames({"w", "h", "n", "fast"})
+    ->Args({256, 256, 10000, 0})
+    ->Args({512, 512, 100000, 0})
+    ->Args({512, 512, 100000, 1})
+    ->Args({896, 512, 300000, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->MinTime(0.3);
+BENCHMARK(BM_Backward)
+    ->ArgNames({"w", "h", "n", "threads"})
+    ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, false); })
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.3);
+
+BENCHMARK_MAIN();
