@@ -20,10 +20,18 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// A per-process scratch folder, removed when the test program exits.
 fs::path temp_dir() {
-  const fs::path d = fs::temp_directory_path() / ("orbitforge_test_image_io_" + std::to_string(::getpid()));
-  fs::create_directories(d);
-  return d;
+  struct Scratch {
+    fs::path path = fs::temp_directory_path() / ("orbitforge_test_image_io_" + std::to_string(::getpid()));
+    ~Scratch() {
+      std::error_code ignored;
+      fs::remove_all(path, ignored);
+    }
+  };
+  static Scratch scratch;
+  fs::create_directories(scratch.path);
+  return scratch.path;
 }
 
 std::string slurp(const fs::path& p) {
