@@ -10,6 +10,6 @@ launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 generator=()
 command -v ninja >/dev/null && generator=(-G Ninja)
-cmake -S . -B "$BUILD_DIR" "${generator[@]}" -DCMAKE_BUILD_TYPE="$BUILD_TYPE" "${launcher[@]}" "$@"
+cmake -S . -B "$BUILD_DIR" "${generator[@]}" -DCMAKE_BUILD_TYPE="$BUILD_TYPE" "${launcher[@]}" -DORBITFORGE_BUILD_TESTS=ON "$@"
 cmake --build "$BUILD_DIR" --parallel "$(nproc)"
 ctest --test-dir "$BUILD_DIR" --output-on-failure --timeout 1500
