@@ -67,6 +67,12 @@ struct BinWorkspace {
   std::vector<SplatRecord<Scalar>> records;    // [V] rank order
   std::vector<std::uint32_t> tile_offsets;     // [tiles + 1]
   std::vector<std::int32_t> tile_ranks;        // [pairs] ranks, per tile front to back
+  // The same entries in rank-major order (rank r's tiles, ascending tile index):
+  // entry e of the tile lists is number entry_slot[e]; rank r owns
+  // [rank_offsets[r], rank_offsets[r+1]). The backward pass writes per-entry
+  // gradients there so that summing them per Gaussian streams through memory.
+  std::vector<std::uint32_t> entry_slot;       // [pairs]
+  std::vector<std::uint32_t> rank_offsets;     // [visible + 1]
   // Timings of the last bin_splats call.
   double sort_ms = 0, bin_ms = 0;
 
@@ -208,13 +214,23 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   }
   ws.tile_ranks.resize(std::size_t(total));
   ws.cursor_.assign(ws.tile_offsets.begin(), ws.tile_offsets.end() - 1);
+  ws.entry_slot.resize(std::size_t(total));
+  ws.rank_offsets.resize(v + 1);
   std::uint32_t* cursor = ws.cursor_.data();
   std::int32_t* out = ws.tile_ranks.data();
+  std::uint32_t* slot = ws.entry_slot.data();
+  std::uint32_t k = 0;  // rank-major position of the next entry
   for (std::size_t r = 0; r < v; ++r) {
     const auto box = ws.boxes_[r];
+    ws.rank_offsets[r] = k;
     for (int ty = box[1]; ty <= box[3]; ++ty)
-      for (int tx = box[0]; tx <= box[2]; ++tx) out[cursor[ty * tiles_x + tx]++] = std::int32_t(r);
+      for (int tx = box[0]; tx <= box[2]; ++tx) {
+        const std::uint32_t e = cursor[ty * tiles_x + tx]++;
+        out[e] = std::int32_t(r);
+        slot[e] = k++;
+      }
   }
+  ws.rank_offsets[v] = k;
   const auto t2 = clock::now();
   ws.sort_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   ws.bin_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();

@@ -102,7 +102,7 @@ struct RasterWorkspace {
   std::vector<WorkerStats> worker_stats;
   // Backward only.
   std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
-  std::vector<Scalar> pair_grad;                    // [pairs][10]
+  std::vector<Scalar> pair_grad;                    // [pairs][10] rank-major (BinWorkspace::entry_slot)
 };
 
 namespace detail {

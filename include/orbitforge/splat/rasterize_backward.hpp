@@ -15,7 +15,8 @@
 // no opacity, conic or mean gradient (colour and depth still get w_i).
 //
 // Determinism: each tile writes its per-Gaussian sums into its own slots of a
-// per-(tile, Gaussian) buffer; the slots are added up in tile order afterwards.
+// per-(tile, Gaussian) buffer (laid out Gaussian-major, see BinWorkspace); the
+// slots are added up in tile order afterwards.
 // Results therefore do not depend on the thread count or scheduling.
 #include <array>
 #include <chrono>
@@ -100,8 +101,9 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
     tile_max = std::max(tile_max, cmax);
   }
   // Entries past every pixel's last blend get zero gradient.
+  const std::uint32_t* slot = bins.entry_slot.data() + off;
   for (int j = tile_max; j < n; ++j)
-    for (int f = 0; f < kGradFields; ++f) pair_grad[(off + std::size_t(j)) * kGradFields + std::size_t(f)] = Scalar(0);
+    for (int f = 0; f < kGradFields; ++f) pair_grad[std::size_t(slot[j]) * kGradFields + std::size_t(f)] = Scalar(0);
 
   const B zero(Scalar(0)), one(Scalar(1));
   for (int j = tile_max - 1; j >= 0; --j) {
@@ -158,7 +160,7 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       g_mx = simd::fma(v_power, simd::fma(B(G.conic_a), dx, B(G.conic_b) * dy), g_mx);
       g_my = simd::fma(v_power, simd::fma(B(G.conic_b), dx, B(G.conic_c) * dy), g_my);
     }
-    Scalar* out = pair_grad + (off + std::size_t(j)) * kGradFields;
+    Scalar* out = pair_grad + std::size_t(slot[j]) * kGradFields;
     out[kGradOpacity] = simd::hadd(g_o);
     out[kGradA] = Scalar(-0.5) * simd::hadd(g_a);
     out[kGradB] = -simd::hadd(g_b);
@@ -214,19 +216,27 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   if (params.fast_exp) run(std::true_type{});
   else run(std::false_type{});
 
-  // Sum the per-(tile, Gaussian) slots in tile order: deterministic.
+  // Sum each Gaussian's per-tile slots (stored rank-major, in tile order:
+  // deterministic), streaming through pair_grad; ranks split across workers.
+  const std::size_t visible = bins.visible();
+  constexpr std::size_t F = detail::kGradFields;
   ProjectedSplatsGrad<Scalar>& gr = out.splats;
   gr.assign_zero(n_splats);
-  Scalar* fields[detail::kGradFields] = {gr.v_opacity.data(), gr.v_conic_a.data(), gr.v_conic_b.data(),
-                                         gr.v_conic_c.data(), gr.v_mean_x.data(),  gr.v_mean_y.data(),
-                                         gr.v_color_r.data(), gr.v_color_g.data(), gr.v_color_b.data(),
-                                         gr.v_depth.data()};
-  const std::size_t pairs = bins.pairs();
-  for (std::size_t e = 0; e < pairs; ++e) {
-    const std::size_t i = std::size_t(bins.order[std::size_t(bins.tile_ranks[e])]);
-    const Scalar* pg = ws.pair_grad.data() + e * detail::kGradFields;
-    for (int f = 0; f < detail::kGradFields; ++f) fields[f][i] += pg[f];
-  }
+  Scalar* fields[F] = {gr.v_opacity.data(), gr.v_conic_a.data(), gr.v_conic_b.data(), gr.v_conic_c.data(),
+                       gr.v_mean_x.data(),  gr.v_mean_y.data(),  gr.v_color_r.data(), gr.v_color_g.data(),
+                       gr.v_color_b.data(), gr.v_depth.data()};
+  const std::size_t blocks = std::min<std::size_t>(std::size_t(threads) * 4, std::max<std::size_t>(1, visible));
+  parallel_for(blocks, threads, [&](std::size_t b, int) {
+    const std::size_t lo = visible * b / blocks, hi = visible * (b + 1) / blocks;
+    const Scalar* pg = ws.pair_grad.data();
+    for (std::size_t r = lo; r < hi; ++r) {
+      Scalar sum[F] = {};
+      for (std::size_t k = bins.rank_offsets[r]; k < bins.rank_offsets[r + 1]; ++k)
+        for (std::size_t f = 0; f < F; ++f) sum[f] += pg[k * F + f];
+      const std::size_t i = std::size_t(bins.order[r]);
+      for (std::size_t f = 0; f < F; ++f) fields[f][i] = sum[f];
+    }
+  });
   // Background: colour = ... + T_final background.
   out.v_background = {{0, 0, 0}};
   for (std::size_t p = 0; p < g.pixel_count(); ++p)
