@@ -80,13 +80,14 @@ void set_counters(benchmark::State& state, const RenderStats& st, int w, int h) 
   state.counters["fwd_ns_contrib"] = st.raster_ms * 1e6 / double(std::max<std::uint64_t>(1, st.contributions));
 }
 
-// Args: width, height, gaussians, threads, fast_exp
+// Args: width, height, gaussians, threads, fast_exp, tight_extents
 void BM_Forward(benchmark::State& state) {
   const int w = int(state.range(0)), h = int(state.range(1));
   const auto& s = scene(std::size_t(state.range(2)));
   RenderParams<float> p;
   p.threads = int(state.range(3));
   p.fast_exp = state.range(4) != 0;
+  p.tight_extents = state.range(5) != 0;
   Renderer<float> r(p);
   const auto cam = camera(w, h);
   r.render(SceneView<float>(s), cam);  // first frame allocates
@@ -104,11 +105,13 @@ void BM_Forward(benchmark::State& state) {
     sum.contributions = out.frame.contributions;
     sum.pairs_evaluated = out.frame.pairs_evaluated;
     sum.gaussians_visible = out.frame.gaussians_visible;
+    sum.tile_entries = out.frame.tile_entries;
   }
   const double k = 1.0 / double(state.iterations());
   sum.project_ms *= k; sum.sort_ms *= k; sum.bin_ms *= k; sum.raster_ms *= k;
   set_counters(state, sum, w, h);
   state.counters["main_thread_cpu_ms"] = cpu * k;
+  state.counters["tile_entries"] = double(sum.tile_entries);
   if (p.fast_exp) {
     // Error of the fast path against the exact one on this frame.
     Renderer<float> exact(RenderParams<float>{});
@@ -193,16 +196,19 @@ void sizes(benchmark::internal::Benchmark* b, bool with_fast) {
   for (auto wh : {std::pair<int, int>{256, 256}, {512, 512}, {896, 512}})
     for (int n : {10000, 100000, 300000})
       for (int threads : {1, 2}) {
-        if (with_fast) b->Args({wh.first, wh.second, n, threads, 0});
+        if (with_fast) b->Args({wh.first, wh.second, n, threads, 0, 1});
         else b->Args({wh.first, wh.second, n, threads});
       }
-  if (with_fast) b->Args({512, 512, 100000, 1, 1});
+  if (with_fast) {
+    b->Args({512, 512, 100000, 1, 1, 1});  // fast exp
+    b->Args({512, 512, 100000, 1, 0, 0});  // 3-sigma rects instead of opacity-aware ones
+  }
 }
 
 }  // namespace
 
 BENCHMARK(BM_Forward)
-    ->ArgNames({"w", "h", "n", "threads", "fast"})
+    ->ArgNames({"w", "h", "n", "threads", "fast", "tight"})
     ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, true); })
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()

@@ -196,6 +196,13 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   const int tiles_x = g.tiles_x;
   for (std::size_t r = 0; r < v; ++r) {
     const std::size_t p = std::size_t(ws.perm_[r]);
+#if defined(__GNUC__)
+    // The permuted reads miss the cache; ask for them well ahead.
+    if (r + 16 < v) {
+      __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
+      __builtin_prefetch(&ws.packed_boxes_[std::size_t(ws.perm_[r + 16])]);
+    }
+#endif
     ws.records[r] = ws.packed_[p];
     const auto box = ws.packed_boxes_[p];
     ws.boxes_[r] = box;
