@@ -4,6 +4,10 @@
 // chunk; the activation layout (points as columns vs rows); and the MedianGS bake.
 //
 //   build-nn/bench/bench_mlp --benchmark_filter=Deform
+//
+// The field benchmarks report the CPU time of the whole process (all threads):
+// on a shared, loaded 2-core machine CPU / threads predicts the unloaded wall
+// time better than the wall time does.
 #include <benchmark/benchmark.h>
 
 #include <random>
@@ -41,6 +45,7 @@ void BM_DeformForward(benchmark::State& state) {
   const auto x = random_means(kPoints);
   typename DeformationField<float>::Workspace ws;
   DeformationOffsets<float> off;
+  f.evaluate(x, 0.4f, ws, off, int(state.range(3)));  // warm-up: workspace allocation and first touch
   for (auto _ : state) {
     f.evaluate(x, 0.4f, ws, off, int(state.range(3)));
     benchmark::DoNotOptimize(off.dx.data());
@@ -58,6 +63,8 @@ void BM_DeformForwardBackward(benchmark::State& state) {
   v.dq.setConstant(-1e-3f);
   v.ds.setConstant(2e-3f);
   std::vector<float> g(f.parameter_count());
+  f.evaluate(x, 0.4f, ws, off, int(state.range(3)));  // warm-up
+  f.evaluate_vjp(ws, v, g.data(), nullptr, int(state.range(3)));
   for (auto _ : state) {
     f.evaluate(x, 0.4f, ws, off, int(state.range(3)));
     std::fill(g.begin(), g.end(), 0.f);

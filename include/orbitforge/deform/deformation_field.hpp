@@ -85,8 +85,19 @@ struct DeformationFieldParams {
     p.skip_layer = 4;
     return p;
   }
-  // The CPU default, chosen in bench_mlp (see README/bench figures): 4 x 64, no
-  // skip; ~30x cheaper than original() per point.
+  // The CPU default, chosen by measurement (bench_mlp; 50k Gaussians, float, CPU
+  // time of one thread, best of 3, AVX-512 EPYC 2.1 GHz):
+  //              forward   backward   per training step
+  //   8 x 256     405 ms    787 ms     ~1.2 s   (original)
+  //   6 x 128      99 ms   ~170 ms     ~270 ms
+  //   4 x 128      62 ms   ~100 ms     ~165 ms
+  //   4 x 64       25 ms     38 ms      ~63 ms  (this default; ~32 ms on 2 threads)
+  //   3 x 64       22 ms     30 ms      ~51 ms
+  //   2 x 64       17 ms     20 ms      ~37 ms
+  // 4 x 64 keeps the deformable step within the "under twice the static step"
+  // budget on 2 cores while keeping a 4-layer trunk; the skip is not worth its
+  // extra 76-column GEMM at this depth (+15% time). Quality against time still
+  // needs the trainer's measurement.
   static DeformationFieldParams fast() { return DeformationFieldParams{}; }
 };
 
