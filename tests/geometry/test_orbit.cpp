@@ -41,6 +41,8 @@ TEMPLATE_TEST_CASE("fit_orbit recovers a known orbit exactly (random planes, bot
     const double r = o.radius;
     REQUIRE(fit.diagnostics.convention == "row2");
     REQUIRE(fit.diagnostics.normal_rule == "camera_up");
+    REQUIRE(fit.diagnostics.center_rule == "look_at");
+    REQUIRE(fit.diagnostics.center_offset < tol<S>() * 10);  // look-at and circle centres agree
     REQUIRE((fit.orbit.normal - o.n()).norm() < tol<S>());
     REQUIRE((fit.orbit.center - o.center).norm() < tol<S>() * r * 10);
     REQUIRE(fit.orbit.radius == Approx(r).epsilon(tol<S>()));
@@ -245,6 +247,23 @@ TEMPLATE_TEST_CASE("fit_orbit: noise, short arcs, transposed rotations", "[geome
       REQUIRE(fit.diagnostics.circle_rmse == Approx(0.01).epsilon(0.3));  // radial part of the noise
       REQUIRE(fit.diagnostics.lookat_error_deg < 1.5);
     }
+  }
+  SECTION("cameras aimed off the orbit axis: the circle centre option, and center_offset shows it") {
+    SyntheticOrbit<S> o;
+    o.count = 60;
+    o.step_deg = 3;
+    auto src = o.cameras();
+    const Eigen::Matrix<S, 3, 1> shift = S(0.3) * o.e1();
+    for (auto& f : src)  // re-aim at a point 0.3 off the axis
+      f.camera = Camera<S>::look_at(f.camera.center(), Eigen::Matrix<S, 3, 1>(o.look_at() + shift), o.n(),
+                                    f.camera.intrinsics);
+    OrbitParams p;
+    p.center = OrbitCenter::circle;
+    const auto fit = fit_orbit(src, p);
+    REQUIRE((fit.orbit.center - o.center).norm() < 1e-3);
+    REQUIRE(fit.diagnostics.center_offset == Approx(0.3 / o.radius).epsilon(1e-3));
+    const auto fl = fit_orbit(src);  // default: centre under the look-at point
+    REQUIRE((fl.orbit.center - (o.center + shift)).norm() < 1e-3);
   }
   SECTION("a 20-degree exact arc is still recovered") {
     SyntheticOrbit<S> o;

@@ -67,7 +67,7 @@ PlaneFit<Scalar> fit_plane(const std::vector<Eigen::Matrix<Scalar, 3, 1>>& point
   pf.centroid /= Scalar(T);
   MatX3 X(T, 3);
   for (std::size_t i = 0; i < T; ++i) X.row(i) = (points[i] - pf.centroid).transpose();
-  Eigen::JacobiSVD<MatX3> svd(X, Eigen::ComputeThinV);
+  Eigen::JacobiSVD<MatX3> svd(X, Eigen::ComputeFullV);  // V is 3x3: "thin" is only for dynamic columns
   pf.singular_values = svd.singularValues();
   const Vec3 s = svd.singularValues();
   const Scalar scale = std::max(Scalar(1), pf.centroid.cwiseAbs().maxCoeff());
