@@ -1,0 +1,591 @@
+#pragma once
+// Gaussian Splatting training on the CPU, static (3DGS, Kerbl et al. 2023) and
+// deformable (Deformable 3D Gaussians, Yang et al. 2023): frames with per-frame
+// cameras and a time code t in [0, 1] -> a trained GaussianScene (+ a
+// DeformationField).
+//
+//   std::vector<TrainFrame<float>> frames = ...;      // image [H][W][3] in [0, 1]
+//   Trainer<float> trainer(frames, init_from_points(xyz, rgb), params);
+//   trainer.train(params.iterations, [](const TrainProgress& p) { ... });
+//   trainer.save_checkpoint("ckpt.bin");
+//
+// One iteration (1-based `it`), as 3DGS train.py does it:
+//   learning rates for `it`; SH degree + 1 at multiples of sh_degree_interval;
+//   next frame of a seeded shuffled order (reshuffled when used up);
+//   render (deformable and it > warmup: DeformedSceneView with the field's offsets at
+//   the frame's t); loss 0.8 L1 + 0.2 (1 - SSIM); backward (into the field through its
+//   vjp, into the canonical Gaussians through base_gradients); Adam steps;
+//   densification statistics, densify/prune (optimizer moments remapped; new
+//   Gaussians start with zero moments) and opacity resets per DensifySchedule.
+// Differences from 3DGS: the optimizer step comes before densification in the same
+// iteration (3DGS densifies first and skips the step for the new tensors).
+//
+// Determinism: the same frames, initial scene, params and thread count give the same
+// result bit for bit (renderer, loss and network are deterministic per thread count).
+//
+// Checkpoints (save_checkpoint / load_checkpoint) hold the iteration, scene, optimizer
+// moments and steps, RNG and frame-order state, densification statistics and the
+// field with its optimizer; resuming with the same frames, params and thread count
+// continues exactly as an uninterrupted run. Written atomically (temp + rename).
+#include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "orbitforge/core/camera.hpp"
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/deform/deformation_field.hpp"
+#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/nn/adam.hpp"
+#include "orbitforge/nn/binary_io.hpp"
+#include "orbitforge/splat/gaussians.hpp"
+#include "orbitforge/splat/project.hpp"
+#include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/densify.hpp"
+#include "orbitforge/train/losses.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+struct TrainFrame {
+  Image<Scalar> image;     // [H][W][3], values in [0, 1], H x W = the camera's image size
+  Camera<Scalar> camera;
+  Scalar time = 0;         // time code in [0, 1] (deformable training)
+  std::string name;
+};
+
+// Settings with the published defaults (3DGS arguments/__init__.py; Deformable 3D
+// Gaussians for the deformable ones). Schedules given for `reference_budget`
+// iterations are scaled to `iterations`.
+struct TrainParams {
+  int iterations = 30000;
+  int reference_budget = 30000;     // the budget the published schedules are for
+  unsigned seed = 0;
+  int threads = 0;                  // 0 = all hardware threads
+  std::array<double, 3> background{{0, 0, 0}};  // white {1,1,1} for the v3d videos
+
+  // Learning rates. Positions: exponential decay from init to final over the
+  // budget, both times the scene extent (3DGS spatial_lr_scale).
+  double position_lr_init = 1.6e-4;
+  double position_lr_final = 1.6e-6;
+  double feature_lr = 2.5e-3;       // SH DC; higher SH coefficients use feature_lr / sh_rest_divisor
+  double sh_rest_divisor = 20;
+  double opacity_lr = 0.05;         // the 3DGS paper value (later 3DGS versions use 0.025)
+  double scaling_lr = 5e-3;
+  double rotation_lr = 1e-3;
+  AdamParams adam;                  // eps 1e-15 as 3DGS
+
+  int max_sh_degree = 3;
+  int sh_degree_interval = 1000;    // per reference_budget; scaled (>= 1)
+  double lambda_dssim = 0.2;
+
+  bool densify = true;
+  DensifyParams densify_params;
+  DensifySchedule densify_schedule;  // published; scaled to the budget
+
+  // Deformable training.
+  bool deformable = false;
+  DeformationFieldParams field = DeformationFieldParams::fast();
+  int warmup_iterations = 3000;      // per deform_reference_budget: no deformation before
+  int deform_reference_budget = 40000;
+  double deform_lr_init = 8e-4;      // 1.6e-4 * 5 (Deformable 3DGS), times the scene extent? no: absolute
+  double deform_lr_final = 8e-6;     // decays over the budget
+};
+
+struct TrainProgress {
+  int iteration = 0, iterations = 0;
+  double loss = 0, l1 = 0, ssim = 0;
+  double psnr = 0;                   // of this iteration's render against its frame
+  std::size_t gaussians = 0;
+  int sh_degree = 0;
+  bool deforming = false;            // the deformation field was applied
+  double seconds_per_iteration = 0;  // wall time of this iteration
+  double elapsed_seconds = 0;        // wall time of all iterations trained by this object
+  std::size_t frame = 0;
+};
+
+// Schedules resolved for a budget.
+struct TrainSchedule {
+  int sh_interval = 1000;
+  int warmup = 3000;
+  DensifySchedule densify;
+
+  static TrainSchedule make(const TrainParams& p) {
+    ensure(p.iterations > 0, "TrainParams: iterations must be positive, got ", p.iterations);
+    ensure(p.reference_budget > 0 && p.deform_reference_budget > 0, "TrainParams: reference budgets must be positive");
+    TrainSchedule s;
+    const double f = double(p.iterations) / double(p.reference_budget);
+    s.sh_interval = std::max(1, int(std::lround(p.sh_degree_interval * f)));
+    s.warmup = int(std::lround(double(p.warmup_iterations) * double(p.iterations) / double(p.deform_reference_budget)));
+    s.densify = scale_schedule(p.iterations, p.densify_schedule, p.reference_budget);
+    return s;
+  }
+};
+
+template <class Scalar>
+class Trainer {
+ public:
+  using Progress = std::function<void(const TrainProgress&)>;
+
+  // `frames` must outlive the trainer. `initial` is the starting scene (see
+  // train/init.hpp); its SH degree is the starting active degree.
+  Trainer(const std::vector<TrainFrame<Scalar>>& frames, GaussianScene<Scalar> initial, const TrainParams& params)
+      : frames_(frames), params_(params), schedule_(TrainSchedule::make(params)), scene_(std::move(initial)),
+        adam_(params.adam), field_adam_(params.adam), rng_(params.seed) {
+    ensure(!frames_.empty(), "Trainer: no frames");
+    ensure(params.max_sh_degree >= 0 && params.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ",
+           params.max_sh_degree);
+    ensure(params.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
+    scene_.check_consistent();
+    ensure(!scene_.empty(), "Trainer: the initial scene has no Gaussians");
+    ensure(scene_.sh_degree <= params.max_sh_degree, "Trainer: initial scene has SH degree ", scene_.sh_degree,
+           ", above max_sh_degree ", params.max_sh_degree);
+    std::vector<Camera<Scalar>> cams;
+    for (std::size_t i = 0; i < frames_.size(); ++i) {
+      const auto& f = frames_[i];
+      ensure(f.image.channels == 3 && f.image.width == f.camera.intrinsics.width &&
+                 f.image.height == f.camera.intrinsics.height && !f.image.empty(),
+             "Trainer: frame ", i, " (", f.name, ") has a ", f.image.width, "x", f.image.height, "x",
+             f.image.channels, " image for a ", f.camera.intrinsics.width, "x", f.camera.intrinsics.height,
+             " camera (need RGB of the camera's size)");
+      ensure(f.camera.is_finite(), "Trainer: frame ", i, " (", f.name, ") has a non-finite camera");
+      ensure(std::isfinite(double(f.time)), "Trainer: frame ", i, " (", f.name, ") has a non-finite time code");
+      cams.push_back(f.camera);
+    }
+    extent_ = frames_.size() > 1 ? camera_extent(cams) : Scalar(0);
+    if (!(extent_ > Scalar(1e-6))) extent_ = Scalar(1);  // one camera (or all at one place): unit scale
+    RenderParams<Scalar> rp;
+    for (int c = 0; c < 3; ++c) rp.background[std::size_t(c)] = Scalar(params.background[std::size_t(c)]);
+    rp.threads = params.threads;
+    renderer_ = Renderer<Scalar>(rp);
+    const std::size_t n = scene_.size();
+    g_means_ = adam_.add_group("means", n, 3, Scalar(0));
+    g_rot_ = adam_.add_group("rotations", n, 4, Scalar(params.rotation_lr));
+    g_scale_ = adam_.add_group("log_scales", n, 3, Scalar(params.scaling_lr));
+    g_opacity_ = adam_.add_group("opacity_logits", n, 1, Scalar(params.opacity_lr));
+    g_dc_ = adam_.add_group("sh_dc", n, 3, Scalar(params.feature_lr));
+    g_rest_ = adam_.add_group("sh_rest", n, rest_width(), Scalar(params.feature_lr / params.sh_rest_divisor));
+    stats_.reset(n);
+    if (params.deformable) {
+      field_ = std::make_unique<DeformationField<Scalar>>(params.field);
+      g_field_ = field_adam_.add_group("deformation", field_->parameter_count(), 1, Scalar(0));
+    }
+    order_.resize(frames_.size());
+    cursor_ = order_.size();  // shuffle on first use
+  }
+
+  const TrainParams& params() const { return params_; }
+  const TrainSchedule& schedule() const { return schedule_; }
+  const GaussianScene<Scalar>& scene() const { return scene_; }
+  const DeformationField<Scalar>* field() const { return field_.get(); }
+  const Adam<Scalar>& optimizer() const { return adam_; }
+  const DensifyStats<Scalar>& densify_stats() const { return stats_; }
+  int iteration() const { return iteration_; }
+  Scalar extent() const { return extent_; }
+  const TrainProgress& last_progress() const { return last_; }
+  // The deformation is applied at iterations > warmup.
+  bool deforming_at(int it) const { return field_ && it > schedule_.warmup; }
+
+  // Trains until iteration `until` (at most params.iterations), calling `progress`
+  // after every iteration.
+  void train(int until, const Progress& progress = {}) {
+    until = std::min(until, params_.iterations);
+    while (iteration_ < until) {
+      step();
+      if (progress) progress(last_);
+    }
+  }
+
+  // One iteration; returns its report.
+  const TrainProgress& step() {
+    using clock = std::chrono::steady_clock;
+    const auto t0 = clock::now();
+    ensure(iteration_ < params_.iterations, "Trainer::step: the budget of ", params_.iterations,
+           " iterations is used up");
+    const int it = ++iteration_;
+    const int threads = params_.threads;
+    update_learning_rates(it);
+    if (it % schedule_.sh_interval == 0 && scene_.sh_degree < params_.max_sh_degree) raise_sh_degree();
+
+    const std::size_t fi = next_frame();
+    const TrainFrame<Scalar>& frame = frames_[fi];
+    const bool deforming = deforming_at(it);
+    const GaussianSceneGrad<Scalar>* grad = nullptr;
+    const RenderOutput<Scalar>* out = nullptr;
+    LossTerms<Scalar> loss;
+    if (!deforming) {
+      const SceneView<Scalar> view(scene_);
+      out = &renderer_.render(view, frame.camera);
+      loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
+      grad = &renderer_.backward(view, frame.camera, v_color_);
+    } else {
+      const std::size_t n = scene_.size();
+      const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
+      field_->evaluate(means, frame.time, field_ws_, offsets_, threads);
+      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data());
+      out = &renderer_.render(view, frame.camera);
+      loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
+      const GaussianSceneGrad<Scalar>& vg = renderer_.backward(view, frame.camera, v_color_);
+      // d loss / d offsets = the gradients w.r.t. the deformed view's parameters.
+      v_offsets_.resize(Eigen::Index(n));
+      v_offsets_.dx = Eigen::Map<const Matrix3X<Scalar>>(vg.means.data(), 3, Eigen::Index(n));
+      v_offsets_.dq = Eigen::Map<const Matrix4X<Scalar>>(vg.rotations.data(), 4, Eigen::Index(n));
+      v_offsets_.ds = Eigen::Map<const Matrix3X<Scalar>>(vg.log_scales.data(), 3, Eigen::Index(n));
+      v_field_.assign(field_->parameter_count(), Scalar(0));
+      field_->evaluate_vjp(field_ws_, v_offsets_, v_field_.data(), nullptr, threads);
+      view.base_gradients(vg, base_grad_);
+      grad = &base_grad_;
+      adam_update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
+                  v_field_.size());
+    }
+    last_.psnr = frame_psnr(out->color, frame.image);
+
+    // Adam on the Gaussians.
+    step_group(g_means_, scene_.means, grad->means);
+    step_group(g_rot_, scene_.rotations, grad->rotations);
+    step_group(g_scale_, scene_.log_scales, grad->log_scales);
+    step_group(g_opacity_, scene_.opacity_logits, grad->opacity_logits);
+    step_sh(grad->sh);
+
+    // Adaptive density control.
+    const DensifySchedule& ds = schedule_.densify;
+    if (params_.densify) {
+      if (ds.collects_stats(it)) stats_.add_view(grad->screen_grad_ndc_norm, renderer_.projected().radius);
+      if (ds.densifies_at(it)) densify_now(ds.size_prune_at(it));
+      if (ds.resets_opacity_at(it, white_background())) reset_opacities();
+    }
+
+    const double secs = std::chrono::duration<double>(clock::now() - t0).count();
+    elapsed_ += secs;
+    last_.iteration = it;
+    last_.iterations = params_.iterations;
+    last_.loss = double(loss.total);
+    last_.l1 = double(loss.l1);
+    last_.ssim = double(loss.ssim);
+    last_.gaussians = scene_.size();
+    last_.sh_degree = scene_.sh_degree;
+    last_.deforming = deforming;
+    last_.seconds_per_iteration = secs;
+    last_.elapsed_seconds = elapsed_;
+    last_.frame = fi;
+    return last_;
+  }
+
+  // Renders the current model for a camera at time code t (deformed when the
+  // deformation is active at the current iteration). The image is the renderer's
+  // buffer: valid until the next render or training step.
+  const Image<Scalar>& render(const Camera<Scalar>& camera, Scalar time) {
+    if (deforming_at(iteration_)) {
+      const std::size_t n = scene_.size();
+      const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
+      field_->evaluate(means, time, field_ws_, offsets_, params_.threads);
+      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data());
+      return renderer_.render(view, camera).color;
+    }
+    return renderer_.render(SceneView<Scalar>(scene_), camera).color;
+  }
+
+  // ------------------------------------------------------------------ checkpoints
+  void save_checkpoint(std::ostream& os) const {
+    binary_io::write_tag(os, kTag, sizeof(Scalar));
+    binary_io::write<std::int32_t>(os, iteration_);
+    binary_io::write<std::int32_t>(os, params_.iterations);
+    binary_io::write<std::uint64_t>(os, frames_.size());
+    binary_io::write<std::uint32_t>(os, params_.seed);
+    binary_io::write<std::uint8_t>(os, params_.deformable ? 1 : 0);
+    binary_io::write(os, extent_);
+    binary_io::write(os, elapsed_);
+    binary_io::write<std::int32_t>(os, scene_.sh_degree);
+    binary_io::write_array(os, scene_.means.data(), scene_.means.size());
+    binary_io::write_array(os, scene_.rotations.data(), scene_.rotations.size());
+    binary_io::write_array(os, scene_.log_scales.data(), scene_.log_scales.size());
+    binary_io::write_array(os, scene_.opacity_logits.data(), scene_.opacity_logits.size());
+    binary_io::write_array(os, scene_.sh.data(), scene_.sh.size());
+    adam_.save(os);
+    std::ostringstream rs;
+    rs << rng_;
+    binary_io::write_string(os, rs.str());
+    binary_io::write_array(os, order_.data(), order_.size());
+    binary_io::write<std::uint64_t>(os, cursor_);
+    binary_io::write_array(os, stats_.grad_sum.data(), stats_.grad_sum.size());
+    binary_io::write_array(os, stats_.count.data(), stats_.count.size());
+    binary_io::write_array(os, stats_.max_radius.data(), stats_.max_radius.size());
+    if (field_) {
+      field_->save(os);
+      field_adam_.save(os);
+    }
+    ensure(bool(os), "Trainer::save_checkpoint: write failed");
+  }
+
+  void save_checkpoint(const std::string& path) const {
+    std::ostringstream os(std::ios::binary);
+    save_checkpoint(os);
+    write_file_atomic(path, os.str());
+  }
+
+  // Replaces the training state with the checkpoint's. The trainer must have been
+  // built with the same frames and params (checked: budget, frame count, seed, mode).
+  void load_checkpoint(std::istream& is) {
+    binary_io::read_tag(is, kTag, sizeof(Scalar));
+    const int it = binary_io::read<std::int32_t>(is, "iteration");
+    const int budget = binary_io::read<std::int32_t>(is, "iteration budget");
+    const auto nframes = binary_io::read<std::uint64_t>(is, "frame count");
+    const auto seed = binary_io::read<std::uint32_t>(is, "seed");
+    const bool deformable = binary_io::read<std::uint8_t>(is, "mode") != 0;
+    ensure(budget == params_.iterations, "checkpoint: trained for a budget of ", budget,
+           " iterations, this trainer has ", params_.iterations, " (schedules would differ)");
+    ensure(nframes == frames_.size(), "checkpoint: made with ", nframes, " frames, this trainer has ",
+           frames_.size());
+    ensure(seed == params_.seed, "checkpoint: seed ", seed, " differs from this trainer's ", params_.seed);
+    ensure(deformable == params_.deformable, "checkpoint: ", deformable ? "deformable" : "static",
+           " model, this trainer is ", params_.deformable ? "deformable" : "static");
+    ensure(it >= 0 && it <= budget, "checkpoint: iteration ", it, " outside the budget ", budget);
+    const Scalar extent = binary_io::read<Scalar>(is, "extent");
+    const double elapsed = binary_io::read<double>(is, "elapsed");
+    GaussianScene<Scalar> s;
+    s.sh_degree = binary_io::read<std::int32_t>(is, "SH degree");
+    ensure(s.sh_degree >= 0 && s.sh_degree <= params_.max_sh_degree, "checkpoint: SH degree ", s.sh_degree,
+           " outside 0..", params_.max_sh_degree);
+    s.means = binary_io::read_array<Scalar>(is, "means");
+    s.rotations = binary_io::read_array<Scalar>(is, "rotations");
+    s.log_scales = binary_io::read_array<Scalar>(is, "log_scales");
+    s.opacity_logits = binary_io::read_array<Scalar>(is, "opacity_logits");
+    s.sh = binary_io::read_array<Scalar>(is, "sh");
+    s.check_consistent();
+    Adam<Scalar> adam(params_.adam);
+    adam.load(is);
+    ensure(adam.group_count() == 6, "checkpoint: optimizer has ", adam.group_count(), " groups, expected 6");
+    for (int g = 0; g < 6; ++g)
+      ensure(adam.group(g).rows == s.size(), "checkpoint: optimizer group '", adam.group(g).name, "' has ",
+             adam.group(g).rows, " rows for ", s.size(), " Gaussians");
+    ensure(adam.group(g_rest_).row_width == rest_width(), "checkpoint: SH rest moments have the wrong width");
+    std::mt19937 rng;
+    {
+      std::istringstream rs(binary_io::read_string(is, "rng state"));
+      rs >> rng;
+      ensure(!rs.fail(), "checkpoint: unreadable random generator state");
+    }
+    auto order = binary_io::read_array<std::size_t>(is, "frame order");
+    const auto cursor = binary_io::read<std::uint64_t>(is, "frame cursor");
+    ensure(order.size() == frames_.size() && cursor <= order.size(), "checkpoint: inconsistent frame order");
+    for (auto o : order) ensure(o < frames_.size(), "checkpoint: frame index ", o, " out of range");
+    DensifyStats<Scalar> stats;
+    stats.grad_sum = binary_io::read_array<double>(is, "densify grad_sum");
+    stats.count = binary_io::read_array<std::uint32_t>(is, "densify count");
+    stats.max_radius = binary_io::read_array<Scalar>(is, "densify max_radius");
+    ensure(stats.grad_sum.size() == s.size() && stats.count.size() == s.size() && stats.max_radius.size() == s.size(),
+           "checkpoint: densification statistics do not match the scene");
+    std::unique_ptr<DeformationField<Scalar>> field;
+    Adam<Scalar> field_adam(params_.adam);
+    if (deformable) {
+      field = std::make_unique<DeformationField<Scalar>>(DeformationField<Scalar>::load(is));
+      field_adam.load(is);
+      ensure(field_adam.group_count() == 1 && field_adam.group(0).rows == field->parameter_count(),
+             "checkpoint: deformation optimizer does not match the network");
+    }
+    // Everything read: commit.
+    iteration_ = it;
+    extent_ = extent;
+    elapsed_ = elapsed;
+    scene_ = std::move(s);
+    adam_ = std::move(adam);
+    rng_ = rng;
+    order_ = std::move(order);
+    cursor_ = std::size_t(cursor);
+    stats_ = std::move(stats);
+    if (deformable) {
+      field_ = std::move(field);
+      field_adam_ = std::move(field_adam);
+    }
+  }
+
+  void load_checkpoint(const std::string& path) {
+    std::istringstream is(read_file_bytes(path), std::ios::binary);
+    try {
+      load_checkpoint(is);
+    } catch (const Error& e) {
+      fail(path, ": ", e.what());
+    }
+  }
+
+ private:
+  static constexpr char kTag[9] = "OFTRAIN1";
+
+  int rest_width() const { return std::max(1, 3 * (sh_coefficient_count(params_.max_sh_degree) - 1)); }
+  bool white_background() const {
+    return params_.background[0] >= 1 && params_.background[1] >= 1 && params_.background[2] >= 1;
+  }
+
+  static double frame_psnr(const Image<Scalar>& a, const Image<Scalar>& b) {
+    double s = 0;
+    for (std::size_t i = 0; i < a.data.size(); ++i) {
+      const double d = double(a.data[i]) - double(b.data[i]);
+      s += d * d;
+    }
+    const double mse = s / double(std::max<std::size_t>(1, a.data.size()));
+    return mse > 0 ? -10.0 * std::log10(mse) : 100.0;
+  }
+
+  void update_learning_rates(int it) {
+    ExponentialLr pos;
+    pos.lr_init = params_.position_lr_init * double(extent_);
+    pos.lr_final = params_.position_lr_final * double(extent_);
+    pos.max_steps = params_.iterations;
+    adam_.set_lr(g_means_, Scalar(pos(it)));
+    if (field_) {
+      ExponentialLr f;
+      f.lr_init = params_.deform_lr_init;
+      f.lr_final = params_.deform_lr_final;
+      f.max_steps = params_.iterations;
+      field_adam_.set_lr(g_field_, Scalar(f(it)));
+    }
+  }
+
+  std::size_t next_frame() {
+    if (cursor_ >= order_.size()) {
+      for (std::size_t i = 0; i < order_.size(); ++i) order_[i] = i;
+      std::shuffle(order_.begin(), order_.end(), rng_);
+      cursor_ = 0;
+    }
+    return order_[cursor_++];
+  }
+
+  // Adds the next band of SH coefficients (zero-initialised), as 3DGS's oneupSHdegree
+  // (3DGS keeps all coefficients from the start; inactive ones get zero gradient and
+  // stay zero, so this is the same).
+  void raise_sh_degree() {
+    const std::size_t n = scene_.size();
+    const int k_old = scene_.sh_coefficients();
+    const int k_new = sh_coefficient_count(scene_.sh_degree + 1);
+    std::vector<Scalar> sh(n * std::size_t(k_new) * 3, Scalar(0));
+    for (std::size_t i = 0; i < n; ++i)
+      std::copy_n(&scene_.sh[i * std::size_t(k_old) * 3], k_old * 3, &sh[i * std::size_t(k_new) * 3]);
+    scene_.sh.swap(sh);
+    scene_.sh_degree += 1;
+  }
+
+  // Adam::step's update as a plain loop. Adam::step uses Eigen packets whose
+  // scalar head depends on the array's address (heap alignment), and the head and
+  // the packets can round differently (FMA contraction): two identical runs could
+  // differ in the last bit, which Adam amplifies for gradients at rounding level.
+  static void adam_update(typename Adam<Scalar>::Group& g, const AdamParams& ap, Scalar* p, const Scalar* grad,
+                          std::size_t count) {
+    ++g.step;
+    const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
+    const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
+    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
+    const Scalar step_size = Scalar(double(g.lr) / bc1), inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
+    Scalar* m = g.m.data();
+    Scalar* v = g.v.data();
+    for (std::size_t i = 0; i < count; ++i) {
+      m[i] = b1 * m[i] + (Scalar(1) - b1) * grad[i];
+      v[i] = b2 * v[i] + (Scalar(1) - b2) * grad[i] * grad[i];
+      p[i] -= step_size * m[i] / (std::sqrt(v[i]) * inv_sqrt_bc2 + eps);
+    }
+  }
+
+  void step_group(int id, std::vector<Scalar>& params, const std::vector<Scalar>& grad) {
+    auto& g = adam_.group(id);
+    ensure(params.size() == g.size() && grad.size() == g.size(), "Trainer: optimizer group '", g.name, "' has ",
+           g.size(), " values, parameters ", params.size(), ", gradients ", grad.size());
+    adam_update(g, adam_.params(), params.data(), grad.data(), params.size());
+  }
+
+  // Adam on SH with two learning rates: DC (group sh_dc) and the rest (group
+  // sh_rest, moments stored at the maximum degree's width). Same update as
+  // Adam::step, on the interleaved [N][K][3] layout.
+  void step_sh(const std::vector<Scalar>& grad) {
+    auto& dc = adam_.group(g_dc_);
+    auto& rest = adam_.group(g_rest_);
+    const std::size_t n = scene_.size();
+    const int k3 = 3 * scene_.sh_coefficients();
+    ensure(grad.size() == n * std::size_t(k3), "Trainer: SH gradient has ", grad.size(), " values, expected ",
+           n * std::size_t(k3));
+    const std::size_t rw = std::size_t(rest.row_width);
+    ++dc.step;
+    ++rest.step;
+    const AdamParams& ap = adam_.params();
+    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
+    auto coeffs = [&](const typename Adam<Scalar>::Group& g, Scalar& step_size, Scalar& inv_sqrt_bc2) {
+      const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
+      const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
+      step_size = Scalar(double(g.lr) / bc1);
+      inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
+    };
+    Scalar dc_step, dc_bc2, rest_step, rest_bc2;
+    coeffs(dc, dc_step, dc_bc2);
+    coeffs(rest, rest_step, rest_bc2);
+    auto update = [&](Scalar& p, Scalar g, Scalar& m, Scalar& v, Scalar step_size, Scalar inv_sqrt_bc2) {
+      m = b1 * m + (Scalar(1) - b1) * g;
+      v = b2 * v + (Scalar(1) - b2) * g * g;
+      p -= step_size * m / (std::sqrt(v) * inv_sqrt_bc2 + eps);
+    };
+    Scalar* sh = scene_.sh.data();
+    for (std::size_t i = 0; i < n; ++i) {
+      Scalar* p = sh + i * std::size_t(k3);
+      const Scalar* g = grad.data() + i * std::size_t(k3);
+      for (int c = 0; c < 3; ++c) update(p[c], g[c], dc.m[3 * i + c], dc.v[3 * i + c], dc_step, dc_bc2);
+      for (int j = 3; j < k3; ++j)
+        update(p[j], g[j], rest.m[i * rw + std::size_t(j - 3)], rest.v[i * rw + std::size_t(j - 3)], rest_step,
+               rest_bc2);
+    }
+  }
+
+  void densify_now(bool size_prune) {
+    const DensifyPlan plan =
+        densify_and_prune(scene_, stats_, params_.densify_params, extent_, size_prune, rng_);
+    // New row order: kept old rows, then appended rows (zero moments, as 3DGS).
+    std::vector<std::int64_t> source;
+    source.reserve(plan.new_size());
+    for (std::size_t i = 0; i < plan.keep.size(); ++i)
+      if (plan.keep[i]) source.push_back(std::int64_t(i));
+    source.resize(plan.new_size(), -1);
+    for (int g = 0; g < adam_.group_count(); ++g) adam_.gather(g, source);
+    stats_.reset(scene_.size());
+  }
+
+  // 3DGS's reset_opacity also replaces the optimizer state of the opacities by zeros.
+  void reset_opacities() {
+    reset_opacity(scene_, params_.densify_params);
+    auto& g = adam_.group(g_opacity_);
+    std::fill(g.m.begin(), g.m.end(), Scalar(0));
+    std::fill(g.v.begin(), g.v.end(), Scalar(0));
+  }
+
+  const std::vector<TrainFrame<Scalar>>& frames_;
+  TrainParams params_;
+  TrainSchedule schedule_;
+  GaussianScene<Scalar> scene_;
+  Adam<Scalar> adam_, field_adam_;
+  int g_means_ = -1, g_rot_ = -1, g_scale_ = -1, g_opacity_ = -1, g_dc_ = -1, g_rest_ = -1, g_field_ = -1;
+  std::mt19937 rng_;
+  std::vector<std::size_t> order_;
+  std::size_t cursor_ = 0;
+  DensifyStats<Scalar> stats_;
+  Scalar extent_ = 1;
+  int iteration_ = 0;
+  double elapsed_ = 0;
+  TrainProgress last_;
+
+  // Workspaces reused across iterations.
+  Renderer<Scalar> renderer_;
+  Image<Scalar> v_color_;
+  SsimWorkspace<Scalar> ssim_ws_;
+  std::unique_ptr<DeformationField<Scalar>> field_;
+  typename DeformationField<Scalar>::Workspace field_ws_;
+  DeformationOffsets<Scalar> offsets_, v_offsets_;
+  std::vector<Scalar> v_field_;
+  GaussianSceneGrad<Scalar> base_grad_;
+};
+
+}  // namespace orbitforge

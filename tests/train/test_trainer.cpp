@@ -1,0 +1,274 @@
+// Trainer: a tiny synthetic scene (targets rendered from a known scene) is fitted
+// (loss falls), fixed seeds repeat bit for bit, checkpoint resume equals an
+// uninterrupted run, densification keeps the optimizer state aligned with the
+// scene, deformable training moves the network; initialisation helpers.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <random>
+#include <sstream>
+
+#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/init.hpp"
+#include "orbitforge/train/trainer.hpp"
+
+using namespace orbitforge;
+
+namespace {
+
+template <class S>
+std::vector<TrainFrame<S>> tiny_frames(int count = 8, int size = 32) {
+  SyntheticInputParams p;
+  p.frames = count;
+  p.source_frames = count;
+  p.width = p.height = size;
+  p.focal = 1.25 * size;
+  p.object_gaussians = 200;
+  p.ground_gaussians = 100;
+  const auto in = make_synthetic_input<S>(p);
+  RenderParams<S> rp;
+  rp.threads = 1;
+  rp.background = {S(1), S(1), S(1)};
+  Renderer<S> r(rp);
+  std::vector<TrainFrame<S>> frames;
+  for (int i = 0; i < count; ++i) {
+    TrainFrame<S> f;
+    f.camera = in.true_cameras[std::size_t(i)];
+    f.image = r.render(SceneView<S>(in.scene), f.camera).color;
+    f.time = S(i) / S(count - 1);
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
+template <class S>
+GaussianScene<S> tiny_init(const std::vector<TrainFrame<S>>& frames, std::size_t points = 300) {
+  std::vector<Camera<S>> cams;
+  for (const auto& f : frames) cams.push_back(f.camera);
+  InitParams ip;
+  ip.random_points = points;
+  ip.seed = 3;
+  return init_random(cams, camera_extent(cams), ip);
+}
+
+TrainParams tiny_params(int iterations) {
+  TrainParams p;
+  p.iterations = iterations;
+  p.threads = 1;
+  p.seed = 11;
+  p.background = {1, 1, 1};
+  return p;
+}
+
+// Number of positions where two arrays differ (printing whole arrays on failure is useless).
+template <class S>
+std::size_t differences(const std::vector<S>& a, const std::vector<S>& b) {
+  if (a.size() != b.size()) return std::max(a.size(), b.size());
+  std::size_t d = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) d += a[i] == b[i] ? 0 : 1;
+  return d;
+}
+
+template <class S>
+void require_same_scene(const GaussianScene<S>& a, const GaussianScene<S>& b) {
+  REQUIRE(a.size() == b.size());
+  REQUIRE(a.sh_degree == b.sh_degree);
+  CHECK(differences(a.means, b.means) == 0);
+  CHECK(differences(a.rotations, b.rotations) == 0);
+  CHECK(differences(a.log_scales, b.log_scales) == 0);
+  CHECK(differences(a.opacity_logits, b.opacity_logits) == 0);
+  CHECK(differences(a.sh, b.sh) == 0);
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("mean_sq_distance_3nn matches brute force", "[train][init]", float, double) {
+  using S = TestType;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::vector<S> pts;
+  for (int i = 0; i < 400; ++i) {
+    // Clustered and spread points, so that the grid search has to widen its rings.
+    const double f = i < 300 ? 0.05 : 1.0;
+    for (int a = 0; a < 3; ++a) pts.push_back(S(u(rng) * f + (a == 0 && i >= 300 ? 3.0 : 0.0)));
+  }
+  const auto got = mean_sq_distance_3nn(pts);
+  const std::size_t n = pts.size() / 3;
+  for (std::size_t i = 0; i < n; ++i) {
+    std::vector<double> d;
+    for (std::size_t j = 0; j < n; ++j) {
+      if (j == i) continue;
+      double s = 0;
+      for (int a = 0; a < 3; ++a) s += std::pow(double(pts[3 * i + a]) - double(pts[3 * j + a]), 2);
+      d.push_back(s);
+    }
+    std::sort(d.begin(), d.end());
+    CHECK(double(got[i]) == Approx((d[0] + d[1] + d[2]) / 3).epsilon(1e-5));
+  }
+}
+
+TEST_CASE("init_from_points: colours, opacity, scales", "[train][init]") {
+  const std::vector<double> pts = {0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3};
+  const std::vector<double> rgb = {1, 0, 0.5, 0, 1, 0, 0, 0, 1, 0.2, 0.2, 0.2};
+  const auto s = init_from_points(pts, rgb);
+  REQUIRE(s.size() == 4);
+  CHECK(sigmoid(s.opacity_logits[0]) == Approx(0.1));
+  CHECK(sh_c0<double>() * s.sh[0] + 0.5 == Approx(1.0));
+  CHECK(sh_c0<double>() * s.sh[2] + 0.5 == Approx(0.5));
+  // Point 0: neighbours at squared distances 1, 4, 9 -> scale sqrt(14/3).
+  CHECK(std::exp(s.log_scales[0]) == Approx(std::sqrt(14.0 / 3.0)));
+  CHECK_THROWS_AS(init_from_points(pts, std::vector<double>(3)), Error);
+}
+
+TEMPLATE_TEST_CASE("training a tiny scene lowers the loss", "[train][trainer]", float, double) {
+  using S = TestType;
+  const auto frames = tiny_frames<S>();
+  const int iters = 400;
+  Trainer<S> t(frames, tiny_init(frames), tiny_params(iters));
+  double first = 0, last = 0;
+  double psnr_first = 0, psnr_last = 0;
+  const int window = 24;
+  t.train(iters, [&](const TrainProgress& p) {
+    REQUIRE(std::isfinite(p.loss));
+    CHECK(p.gaussians > 0);
+    if (p.iteration <= window) {
+      first += p.loss / window;
+      psnr_first += p.psnr / window;
+    }
+    if (p.iteration > iters - window) {
+      last += p.loss / window;
+      psnr_last += p.psnr / window;
+    }
+  });
+  INFO("loss " << first << " -> " << last << ", PSNR " << psnr_first << " -> " << psnr_last);
+  CHECK(last < 0.5 * first);
+  CHECK(psnr_last > psnr_first + 5);
+  CHECK(t.scene().sh_degree == 3);  // raised every iterations/30 iterations
+  CHECK(t.iteration() == iters);
+}
+
+TEST_CASE("fixed seed: identical result twice", "[train][trainer]") {
+  using S = float;
+  const auto frames = tiny_frames<S>();
+  const auto init = tiny_init(frames);
+  Trainer<S> a(frames, init, tiny_params(120));
+  Trainer<S> b(frames, init, tiny_params(120));
+  a.train(120);
+  b.train(120);
+  require_same_scene(a.scene(), b.scene());
+  // A different seed changes the frame order, hence the result.
+  TrainParams p = tiny_params(120);
+  p.seed = 12;
+  Trainer<S> c(frames, init, p);
+  c.train(120);
+  CHECK((c.scene().size() != a.scene().size() || differences(c.scene().means, a.scene().means) > 0));
+}
+
+TEMPLATE_TEST_CASE("checkpoint: train N, save, resume M == train N + M", "[train][trainer]", float, double) {
+  using S = TestType;
+  const auto frames = tiny_frames<S>();
+  const auto init = tiny_init(frames);
+  const int budget = 150, n = 67;  // n lies between densification steps (statistics pending)
+  Trainer<S> full(frames, init, tiny_params(budget));
+  full.train(budget);
+
+  Trainer<S> first(frames, init, tiny_params(budget));
+  first.train(n);
+  std::stringstream ss(std::ios::in | std::ios::out | std::ios::binary);
+  first.save_checkpoint(ss);
+  Trainer<S> resumed(frames, tiny_init(frames, 10), tiny_params(budget));  // different start, overwritten
+  resumed.load_checkpoint(ss);
+  CHECK(resumed.iteration() == n);
+  resumed.train(budget);
+  require_same_scene(full.scene(), resumed.scene());
+
+  // Mismatched settings and truncated data are refused.
+  std::stringstream again(std::ios::in | std::ios::out | std::ios::binary);
+  first.save_checkpoint(again);
+  Trainer<S> other(frames, init, tiny_params(budget + 1));
+  CHECK_THROWS_AS(other.load_checkpoint(again), Error);
+  std::string bytes = ss.str();
+  std::stringstream cut(bytes.substr(0, bytes.size() / 2), std::ios::in | std::ios::binary);
+  Trainer<S> t2(frames, init, tiny_params(budget));
+  CHECK_THROWS_AS(t2.load_checkpoint(cut), Error);
+  CHECK(t2.iteration() == 0);  // nothing partially loaded
+}
+
+TEST_CASE("densification changes the count and keeps optimizer state aligned", "[train][trainer]") {
+  using S = float;
+  const auto frames = tiny_frames<S>();
+  const int budget = 600;
+  Trainer<S> t(frames, tiny_init(frames), tiny_params(budget));
+  const DensifySchedule& ds = t.schedule().densify;
+  REQUIRE(ds.densify_interval == 2);
+  REQUIRE(ds.densify_from == 10);
+  std::size_t start = t.scene().size();
+  bool changed = false;
+  for (int it = 1; it <= ds.densify_until + 2; ++it) {
+    const std::size_t before = t.scene().size();
+    t.step();
+    const std::size_t after = t.scene().size();
+    if (after != before) {
+      changed = true;
+      CHECK(ds.densifies_at(it));  // the size changes only at densification steps
+    }
+    const auto& opt = t.optimizer();
+    for (int g = 0; g < opt.group_count(); ++g) REQUIRE(opt.group(g).rows == after);
+    REQUIRE(t.densify_stats().size() == after);
+  }
+  CHECK(changed);
+  CHECK(t.scene().size() != start);
+  // A Gaussian the densifier appended starts with zero moments: check right after one step.
+  Trainer<S> u(frames, tiny_init(frames), tiny_params(budget));
+  int it = 0;
+  while (true) {
+    ++it;
+    const std::size_t before = u.scene().size();
+    u.step();
+    if (ds.densifies_at(it) && u.scene().size() > before) break;
+    REQUIRE(it < ds.densify_until);
+  }
+  const auto& g = u.optimizer().group(0);  // means
+  CHECK(g.m[3 * (u.scene().size() - 1)] == 0.0f);
+  CHECK(g.v[3 * (u.scene().size() - 1)] == 0.0f);
+}
+
+TEST_CASE("deformable training: warm-up, then the field learns; checkpoint round trip", "[train][trainer]") {
+  using S = float;
+  const auto frames = tiny_frames<S>(6, 24);
+  TrainParams p = tiny_params(80);
+  p.deformable = true;
+  p.field.depth = 2;
+  p.field.width = 16;
+  p.warmup_iterations = 20000;  // of 40000: warm-up of 40 iterations here
+  Trainer<S> t(frames, tiny_init(frames, 150), p);
+  REQUIRE(t.schedule().warmup == 40);
+  const std::vector<S> w0 = t.field()->parameters();
+  t.train(40, [](const TrainProgress& pr) { CHECK_FALSE(pr.deforming); });
+  CHECK(differences(t.field()->parameters(), w0) == 0);  // untouched during warm-up
+  t.train(60, [](const TrainProgress& pr) {
+    CHECK(pr.deforming);
+    CHECK(std::isfinite(pr.loss));
+  });
+  CHECK(differences(t.field()->parameters(), w0) > 0);
+  std::stringstream ss(std::ios::in | std::ios::out | std::ios::binary);
+  t.save_checkpoint(ss);
+  Trainer<S> r(frames, tiny_init(frames, 150), p);
+  r.load_checkpoint(ss);
+  t.train(80);
+  r.train(80);
+  require_same_scene(t.scene(), r.scene());
+  CHECK(differences(t.field()->parameters(), r.field()->parameters()) == 0);
+}
+
+TEST_CASE("trainer rejects bad input", "[train][trainer]") {
+  using S = float;
+  auto frames = tiny_frames<S>(4, 16);
+  const auto init = tiny_init(frames, 50);
+  CHECK_THROWS_AS(Trainer<S>(std::vector<TrainFrame<S>>{}, init, tiny_params(10)), Error);
+  TrainParams p = tiny_params(0);
+  CHECK_THROWS_AS(Trainer<S>(frames, init, p), Error);
+  frames[1].image = Image<S>(8, 8, 3);
+  CHECK_THROWS_AS(Trainer<S>(frames, init, tiny_params(10)), Error);
+}
