@@ -1,0 +1,89 @@
+#pragma once
+// report.md from report.json (the pipeline builds report.json; see pipeline.hpp
+// for its keys). Plain Markdown tables a person can read next to the pictures.
+#include <cmath>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+
+namespace orbitforge {
+
+namespace report_detail {
+inline std::string num(const nlohmann::json& v, int digits = 2) {
+  if (v.is_null()) return "-";
+  if (v.is_boolean()) return v.get<bool>() ? "yes" : "no";
+  if (v.is_number_integer()) return std::to_string(v.get<long long>());
+  if (v.is_number()) {
+    const double d = v.get<double>();
+    if (!std::isfinite(d)) return d > 0 ? "inf" : "nan";
+    char b[64];
+    std::snprintf(b, sizeof(b), "%.*f", digits, d);
+    return b;
+  }
+  if (v.is_string()) return v.get<std::string>();
+  return v.dump();
+}
+inline const nlohmann::json& at(const nlohmann::json& j, const char* a, const char* b = nullptr,
+                                const char* c = nullptr) {
+  static const nlohmann::json null;
+  const nlohmann::json* p = &j;
+  for (const char* k : {a, b, c}) {
+    if (!k) break;
+    if (!p->is_object() || !p->contains(k)) return null;
+    p = &(*p)[k];
+  }
+  return *p;
+}
+}  // namespace report_detail
+
+inline std::string report_markdown(const nlohmann::json& r) {
+  using report_detail::at;
+  using report_detail::num;
+  std::ostringstream md;
+  md << "# OrbitForge pipeline report\n\n";
+  md << "Input: " << num(at(r, "input")) << "  \n";
+  md << "Completion provider: " << num(at(r, "completion_provider")) << "  \n";
+  md << "Prompt: " << num(at(r, "prompt")) << "\n\n";
+  md << "## Stage times (seconds)\n\n| stage | seconds |\n|---|---|\n";
+  if (r.contains("stages"))
+    for (auto it = r["stages"].begin(); it != r["stages"].end(); ++it)
+      md << "| " << it.key() << " | " << num(it.value(), 1) << " |\n";
+  md << "| total | " << num(at(r, "total_seconds"), 1) << " |\n\n";
+  md << "## Coverage\n\nA = measured span of the views backed by evidence (degrees), M = monotone progress, "
+        "closed = A > 330 and M > 0.9. R0: the source cameras; R1: the cameras of V_hat (R0's arc + completion). "
+        "Both are rendered on the full canonical orbit (see \"rendered\" in report.json).\n\n"
+        "| | A | M | closed |\n|---|---|---|---|\n";
+  for (const char* k : {"R0", "R1"})
+    md << "| " << k << " | " << num(at(r, "coverage", k, "A"), 1) << " | " << num(at(r, "coverage", k, "M"), 3)
+       << " | " << num(at(r, "coverage", k, "closed")) << " |\n";
+  md << "\n## Support-stratified quality\n\nBaked scenes (Gmed0 for R0, Gmed1 = final.ply for R1) rendered at the "
+        "recorded cameras: supported = the source frames, gap_heldout = held-out recorded frames in the "
+        "originally unsupported gap (never seen by any stage).\n\n"
+        "| | supported PSNR | supported SSIM | views | gap PSNR | gap SSIM | views |\n|---|---|---|---|---|---|---|\n";
+  for (const char* k : {"R0", "R1"}) {
+    md << "| " << k;
+    for (const char* s : {"supported", "gap_heldout"})
+      md << " | " << num(at(r, "quality", k, s).is_object() ? r["quality"][k][s]["psnr"] : nlohmann::json()) << " | "
+         << num(at(r, "quality", k, s).is_object() ? r["quality"][k][s]["ssim"] : nlohmann::json(), 3) << " | "
+         << num(at(r, "quality", k, s).is_object() ? r["quality"][k][s]["views"] : nlohmann::json());
+    md << " |\n";
+  }
+  md << "\n## Completion\n\n";
+  md << "- loop-endpoint L1 of V_hat (0-255): " << num(at(r, "completion", "loop_endpoint_l1")) << "\n";
+  md << "- anchor index error: mean " << num(at(r, "completion", "anchor_index_error", "mean")) << ", max "
+     << num(at(r, "completion", "anchor_index_error", "max")) << " frames\n";
+  const auto& tr = at(r, "completion", "temporal_trace");
+  md << "- temporal trace: absolute turns " << num(at(tr, "absolute_turns"), 3) << ", net turns "
+     << num(at(tr, "net_turns"), 3) << ", stall fraction " << num(at(tr, "stall_fraction"), 3) << ", reversals "
+     << num(at(tr, "reversals")) << "\n\n";
+  md << "## Orbit fitting diagnostics\n\n| | |\n|---|---|\n";
+  if (r.contains("diagnostics") && r["diagnostics"].is_object())
+    for (auto it = r["diagnostics"].begin(); it != r["diagnostics"].end(); ++it)
+      if (!it.value().is_array()) md << "| " << it.key() << " | " << num(it.value(), 3) << " |\n";
+  md << "\n## Pictures\n\n![contact sheet](contact_sheet.png)\n\n![support mask](support_mask.png) "
+        "![top view](top_view.png)\n";
+  return md.str();
+}
+
+}  // namespace orbitforge
