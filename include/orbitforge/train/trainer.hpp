@@ -98,7 +98,7 @@ struct TrainParams {
   DeformationFieldParams field = DeformationFieldParams::fast();
   int warmup_iterations = 3000;      // per deform_reference_budget: no deformation before
   int deform_reference_budget = 40000;
-  double deform_lr_init = 8e-4;      // 1.6e-4 * 5 (Deformable 3DGS), times the scene extent? no: absolute
+  double deform_lr_init = 8e-4;      // position_lr_init * 5 (Deformable 3DGS), not scaled by the extent
   double deform_lr_final = 8e-6;     // decays over the budget
 };
 
