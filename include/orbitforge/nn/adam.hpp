@@ -104,21 +104,26 @@ class Adam {
   void set_lr(int id, Scalar lr) { group(id).lr = lr; }
 
   // params, grads: [rows * row_width] of group `id`.
-  void step(int id, Scalar* params, const Scalar* grads) {
-    Group& g = group(id);
+  void step(int id, Scalar* params, const Scalar* grads) { update(group(id), p_, params, grads, group(id).size()); }
+
+  // One Adam step of a group over `count` values. A plain loop on purpose: with
+  // Eigen packets the scalar head depends on the array's address, and head and
+  // packets can round differently (FMA contraction), so two identical runs could
+  // differ in the last bit, which Adam amplifies for rounding-level gradients.
+  static void update(Group& g, const AdamParams& ap, Scalar* params, const Scalar* grads, std::size_t count) {
     ++g.step;
-    const double bc1 = 1.0 - std::pow(p_.beta1, double(g.step));
-    const double bc2 = 1.0 - std::pow(p_.beta2, double(g.step));
-    const Scalar b1 = Scalar(p_.beta1), b2 = Scalar(p_.beta2), eps = Scalar(p_.eps);
+    const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
+    const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
+    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
     const Scalar step_size = Scalar(double(g.lr) / bc1);
     const Scalar inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
-    const Eigen::Index n = Eigen::Index(g.size());
-    using Arr = Eigen::Array<Scalar, Eigen::Dynamic, 1>;
-    Eigen::Map<Arr> p(params, n), m(g.m.data(), n), v(g.v.data(), n);
-    Eigen::Map<const Arr> gr(grads, n);
-    m = b1 * m + (Scalar(1) - b1) * gr;
-    v = b2 * v + (Scalar(1) - b2) * gr.square();
-    p -= step_size * m / (v.sqrt() * inv_sqrt_bc2 + eps);
+    Scalar* m = g.m.data();
+    Scalar* v = g.v.data();
+    for (std::size_t i = 0; i < count; ++i) {
+      m[i] = b1 * m[i] + (Scalar(1) - b1) * grads[i];
+      v[i] = b2 * v[i] + (Scalar(1) - b2) * grads[i] * grads[i];
+      params[i] -= step_size * m[i] / (std::sqrt(v[i]) * inv_sqrt_bc2 + eps);
+    }
   }
 
   // Keeps the rows whose mask entry is true, in order (prune). mask: [rows].

@@ -245,7 +245,7 @@ class Trainer {
       field_->evaluate_vjp(field_ws_, v_offsets_, v_field_.data(), nullptr, threads);
       view.base_gradients(vg, base_grad_);
       grad = &base_grad_;
-      adam_update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
+      Adam<Scalar>::update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
                   v_field_.size());
     }
     last_.psnr = frame_psnr(out->color, frame.image);
@@ -474,31 +474,11 @@ class Trainer {
     scene_.sh_degree += 1;
   }
 
-  // Adam::step's update as a plain loop. Adam::step uses Eigen packets whose
-  // scalar head depends on the array's address (heap alignment), and the head and
-  // the packets can round differently (FMA contraction): two identical runs could
-  // differ in the last bit, which Adam amplifies for gradients at rounding level.
-  static void adam_update(typename Adam<Scalar>::Group& g, const AdamParams& ap, Scalar* p, const Scalar* grad,
-                          std::size_t count) {
-    ++g.step;
-    const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
-    const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
-    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
-    const Scalar step_size = Scalar(double(g.lr) / bc1), inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
-    Scalar* m = g.m.data();
-    Scalar* v = g.v.data();
-    for (std::size_t i = 0; i < count; ++i) {
-      m[i] = b1 * m[i] + (Scalar(1) - b1) * grad[i];
-      v[i] = b2 * v[i] + (Scalar(1) - b2) * grad[i] * grad[i];
-      p[i] -= step_size * m[i] / (std::sqrt(v[i]) * inv_sqrt_bc2 + eps);
-    }
-  }
-
   void step_group(int id, std::vector<Scalar>& params, const std::vector<Scalar>& grad) {
     auto& g = adam_.group(id);
     ensure(params.size() == g.size() && grad.size() == g.size(), "Trainer: optimizer group '", g.name, "' has ",
            g.size(), " values, parameters ", params.size(), ", gradients ", grad.size());
-    adam_update(g, adam_.params(), params.data(), grad.data(), params.size());
+    Adam<Scalar>::update(g, adam_.params(), params.data(), grad.data(), params.size());
   }
 
   // Adam on SH with two learning rates: DC (group sh_dc) and the rest (group
