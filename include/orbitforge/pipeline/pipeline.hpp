@@ -36,6 +36,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
@@ -695,7 +696,8 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
 // when the completion is not ready, Error on bad input; earlier outputs stay.
 template <class Scalar>
 nlohmann::json run_pipeline(const PipelineInput<Scalar>& input, const PipelineParams& params, const std::string& out,
-                            CompletionProvider<Scalar>* provider = nullptr, PipelineRun<Scalar>* state = nullptr) {
+                            CompletionProvider<std::common_type_t<Scalar>>* provider = nullptr,
+                            PipelineRun<std::common_type_t<Scalar>>* state = nullptr) {
   ensure(!out.empty(), "pipeline: no output folder");
   ensure(params.render_stride >= 1, "pipeline: render_stride must be >= 1, got ", params.render_stride);
   ensure(params.iters_g0 >= 1 && params.iters_g1 >= 1, "pipeline: iteration counts must be positive");

@@ -1,0 +1,308 @@
+// End-to-end pipeline on a tiny synthetic input (48x48, 73 orbit views, a few
+// hundred iterations): coverage, outputs that exist and parse, R1 beating R0 on
+// the held-out gap views with the oracle provider, resuming, the none and
+// external providers, and bad inputs that leave earlier outputs intact.
+#include <catch2/catch.hpp>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "orbitforge/pipeline/pipeline.hpp"
+#include "support/data.hpp"
+
+using namespace orbitforge;
+namespace fs = std::filesystem;
+
+namespace {
+
+#ifdef ORBITFORGE_TEST_QUICK
+constexpr bool kQuick = true;
+#else
+constexpr bool kQuick = false;
+#endif
+
+struct Scratch {
+  fs::path root;
+  Scratch() {
+    std::random_device rd;
+    root = fs::temp_directory_path() / ("orbitforge_pipeline_test_" + std::to_string(rd()));
+    fs::create_directories(root);
+  }
+  ~Scratch() {
+    std::error_code ec;
+    fs::remove_all(root, ec);
+  }
+};
+
+Scratch& scratch() {
+  static Scratch s;
+  return s;
+}
+
+SyntheticInputParams tiny_input(int source_frames = 33) {
+  SyntheticInputParams sp;
+  sp.width = sp.height = kQuick ? 32 : 48;
+  sp.focal = 160.0 * sp.height / 128.0;
+  sp.source_frames = source_frames;
+  sp.object_gaussians = 1500;
+  sp.ground_gaussians = 1000;
+  return sp;
+}
+
+PipelineParams tiny_params() {
+  PipelineParams p;
+  p.orbit.views = 73;
+  p.iters_g0 = p.iters_g1 = kQuick ? 60 : 200;
+  p.init_points = kQuick ? 400 : 1000;
+  p.median_samples = 16;
+  p.train.field.width = 32;
+  p.train.field.depth = 2;
+  p.checkpoint_every = 100;
+  p.threads = 2;
+  p.progress = false;
+  p.completion = "oracle";
+  return p;
+}
+
+const PipelineInput<float>& tiny_input_data() {
+  static const PipelineInput<float> in = synthetic_pipeline_input<float>(tiny_input(), 2);
+  return in;
+}
+
+// The oracle run every other test starts from (run once).
+const fs::path& oracle_run() {
+  static fs::path dir;
+  if (dir.empty()) {
+    dir = scratch().root / "oracle";
+    run_pipeline(tiny_input_data(), tiny_params(), dir.string());
+  }
+  return dir;
+}
+
+nlohmann::json parse_file(const fs::path& p) {
+  INFO(p.string());
+  REQUIRE(fs::exists(p));
+  return nlohmann::json::parse(read_file_bytes(p.string()));
+}
+
+void copy_run(const fs::path& from, const fs::path& to) {
+  fs::remove_all(to);
+  fs::copy(from, to, fs::copy_options::recursive);
+}
+
+}  // namespace
+
+TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R0 in the gap", "[pipeline][full]") {
+  const fs::path& dir = oracle_run();
+  const int views = 73;
+
+  // orbit.json
+  const auto orbit = parse_file(dir / "orbit.json");
+  REQUIRE(orbit.at("cameras").size() == std::size_t(views));
+  REQUIRE(orbit.at("layout").at("frames").get<int>() == 73);  // 8m + 1
+
+  // Scenes and checkpoints.
+  for (const char* ply : {"gmed0.ply", "final.ply"}) {
+    const auto s = read_ply<float>((dir / ply).string());
+    CHECK(s.size() > 100);
+  }
+  for (const char* ck : {"g0/checkpoint.bin", "g1/checkpoint.bin"}) {
+    INFO(ck);
+    REQUIRE(fs::exists(dir / ck));
+    CHECK(fs::file_size(dir / ck) > 1000);
+    CHECK_FALSE(fs::exists(dir / fs::path(ck).parent_path() / "partial.bin"));
+  }
+  // R0 / R1 frames: every canonical view, at the working size.
+  for (const char* seq : {"R0", "R1"}) {
+    for (int v = 0; v < views; v += 12) {
+      const auto img = read_image<float>((dir / seq / pipeline_detail::view_file(v)).string());
+      CHECK(img.width == tiny_input().width);
+      CHECK(img.height == tiny_input().height);
+    }
+    CHECK(fs::exists(dir / seq / pipeline_detail::view_file(views - 1)));
+  }
+  // V_hat and the pictures.
+  const auto vhat = parse_file(dir / "vhat.json");
+  REQUIRE(vhat.at("frames").size() > 10);
+  for (const char* pic : {"contact_sheet.png", "support_mask.png", "top_view.png"}) {
+    const auto img = read_image<float>((dir / pic).string());
+    CHECK(img.width > 100);
+  }
+  CHECK(fs::file_size(dir / "report.md") > 200);
+
+  // report.json: the names scripts read.
+  const auto r = parse_file(dir / "report.json");
+  for (const char* s : {"orbit", "g0", "completion", "g1", "report"}) {
+    INFO(s);
+    REQUIRE(r.at("stages").contains(s));
+    CHECK(r["stages"][s].get<double>() >= 0);
+  }
+  CHECK(r.at("total_seconds").get<double>() > 0);
+  for (const char* k : {"R0", "R1"})
+    for (const char* f : {"A", "M", "closed"}) REQUIRE(r.at("coverage").at(k).contains(f));
+  REQUIRE(r.at("diagnostics").contains("cameras_used"));
+  for (const char* k : {"R0", "R1"})
+    for (const char* s : {"supported", "gap_heldout"})
+      for (const char* f : {"psnr", "ssim", "views"}) REQUIRE(r.at("quality").at(k).at(s).contains(f));
+  REQUIRE(r.at("completion").contains("loop_endpoint_l1"));
+  REQUIRE(r.at("completion").contains("temporal_trace"));
+  REQUIRE(r.at("completion").contains("anchor_index_error"));
+  CHECK(r["completion"]["anchor_index_error"]["max"].get<double>() == 0);
+
+  // Coverage: the 33 source frames cover 33/90 of 352 degrees (~125); R1 adds the
+  // recorded gap frames (up to 348 degrees) and closes the orbit.
+  const double a0 = r["coverage"]["R0"]["A"].get<double>();
+  CHECK(a0 > 110);
+  CHECK(a0 < 140);
+  CHECK_FALSE(r["coverage"]["R0"]["closed"].get<bool>());
+  CHECK(r["coverage"]["R1"]["A"].get<double>() > 330);
+  CHECK(r["coverage"]["R1"]["M"].get<double>() > 0.9);
+  CHECK(r["coverage"]["R1"]["closed"].get<bool>());
+  CHECK(r["coverage"]["R0"]["rendered"]["closed"].get<bool>());
+
+  // Held-out gap frames: odd 1-based indices among 34..90 whose cameras fall in the gap.
+  const int held = r["quality"]["R0"]["gap_heldout"]["views"].get<int>();
+  CHECK(held >= 20);
+  CHECK(held <= 29);
+  CHECK(r["quality"]["R0"]["supported"]["views"].get<int>() == 33);
+  if (!kQuick) {
+    const double g0 = r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>();
+    const double g1 = r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>();
+    INFO("gap PSNR R0 " << g0 << " R1 " << g1);
+    CHECK(g1 > g0 + 2.0);
+    CHECK(r["quality"]["R0"]["supported"]["psnr"].get<double>() > 18);
+  }
+}
+
+TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipeline][resume]") {
+  const fs::path& dir = oracle_run();
+  const auto before = read_file_bytes((dir / "report.json").string());
+  const auto t_before = fs::last_write_time(dir / "final.ply");
+  PipelineRun<float> state;
+  const auto r = run_pipeline(tiny_input_data(), tiny_params(), dir.string(), nullptr, &state);
+  CHECK(state.ran.empty());
+  CHECK(state.skipped.size() == 5);
+  CHECK(read_file_bytes((dir / "report.json").string()) == before);
+  CHECK(fs::last_write_time(dir / "final.ply") == t_before);
+  CHECK(r.at("coverage") == nlohmann::json::parse(before).at("coverage"));
+
+  // A changed G1 setting re-runs G1 and the report only.
+  const fs::path copy = scratch().root / "resume_copy";
+  copy_run(dir, copy);
+  PipelineParams p = tiny_params();
+  p.iters_g1 = kQuick ? 20 : 40;
+  PipelineRun<float> s2;
+  run_pipeline(tiny_input_data(), p, copy.string(), nullptr, &s2);
+  CHECK(s2.ran == std::vector<std::string>{"g1", "report"});
+  CHECK(s2.skipped == std::vector<std::string>{"orbit", "g0", "completion"});
+}
+
+TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
+  const fs::path dir = scratch().root / "none";
+  copy_run(oracle_run(), dir);
+  PipelineParams p = tiny_params();
+  p.completion = "none";
+  PipelineRun<float> state;
+  const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
+  CHECK(state.skipped == std::vector<std::string>{"orbit", "g0"});
+  CHECK(r["coverage"]["R1"]["A"] == r["coverage"]["R0"]["A"]);
+  CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((dir / "gmed0.ply").string()));
+  CHECK(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>() ==
+        Approx(r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>()));
+}
+
+TEST_CASE("pipeline: external provider writes the request, stops, and resumes with completed frames",
+          "[pipeline][external]") {
+  const fs::path dir = scratch().root / "external";
+  copy_run(oracle_run(), dir);
+  PipelineParams p = tiny_params();
+  p.completion = "external";
+  p.iters_g1 = kQuick ? 20 : 60;
+  const std::string report_before = read_file_bytes((dir / "report.json").string());
+  REQUIRE_THROWS_AS(run_pipeline(tiny_input_data(), p, dir.string()), PipelineStopped);
+  CHECK(read_file_bytes((dir / "report.json").string()) == report_before);  // earlier outputs intact
+  const auto m = parse_file(dir / "completion_request" / "manifest.json");
+  const int frames = m.at("frames").get<int>();
+  CHECK(frames == 73);
+  CHECK((frames - 1) % 8 == 0);
+  REQUIRE(m.at("synthetic_to_canonical").size() == std::size_t(frames));
+  REQUIRE(m.at("anchors").size() >= 2);
+  CHECK(m.at("anchors")[0].at("synthetic").get<int>() ==
+        (m.at("synthetic_to_canonical").get<std::vector<int>>()[0] == 0 ? 0 : frames - 1 - m.at("start").get<int>()));
+  for (const auto& c : m.at("conditioning")) CHECK(fs::exists(dir / "completion_request" / c.at("file").get<std::string>()));
+  for (const auto& a : m.at("anchors")) CHECK(fs::exists(dir / "completion_request" / a.at("file").get<std::string>()));
+  CHECK(m.at("prompt").get<std::string>().size() > 10);
+
+  // A "video model": every synthetic frame = the R1 render of the view it shows.
+  const auto s2c = m.at("synthetic_to_canonical").get<std::vector<int>>();
+  for (int j = 0; j < frames; ++j)
+    fs::copy_file(dir / "R1" / pipeline_detail::view_file(s2c[std::size_t(j)]),
+                  dir / "completion_request" / "completed" / pipeline_detail::view_file(j),
+                  fs::copy_options::overwrite_existing);
+  PipelineRun<float> state;
+  const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
+  CHECK(state.ran == std::vector<std::string>{"completion", "g1", "report"});
+  CHECK(r["completion_provider"] == "external");
+  // V_hat: one frame per canonical view 0 .. N-1 (arc from R0, gap from the clip).
+  const auto vhat = parse_file(dir / "vhat.json");
+  CHECK(vhat.at("frames").size() == 73);
+  CHECK(r["coverage"]["R1"]["closed"].get<bool>());
+  CHECK(r["completion"]["temporal_trace"]["reversals"].get<int>() == 0);
+}
+
+TEMPLATE_TEST_CASE("pipeline: bad inputs give clear errors and leave earlier outputs intact", "[pipeline][errors]",
+                   float, double) {
+  using S = TestType;
+  const fs::path dir = scratch().root / (std::string("bad_") + (sizeof(S) == 4 ? "f" : "d"));
+  fs::create_directories(dir);
+  write_file_atomic((dir / "orbit.json").string(), "{\"earlier\": true}\n");
+  PipelineParams p = tiny_params();
+
+  SECTION("too few cameras") {
+    PipelineInput<S> in = synthetic_pipeline_input<S>(tiny_input(3), 1);
+    in.source = {0, 1};
+    REQUIRE_THROWS_WITH(run_pipeline(in, p, dir.string()), Catch::Contains("at least 3 source frames"));
+  }
+  SECTION("source arc under 20 degrees") {
+    SyntheticInputParams sp = tiny_input(30);
+    sp.arc_deg = 30;  // 30 frames of 90 over 30 degrees: a 10-degree source arc
+    sp.position_noise = 0.002;
+    sp.rotation_noise_deg = 0.02;
+    sp.drift_per_frame = 0;
+    const PipelineInput<S> in = synthetic_pipeline_input<S>(sp, 1);
+    REQUIRE_THROWS_WITH(run_pipeline(in, p, dir.string()), Catch::Contains("under the minimum of 20"));
+  }
+  SECTION("a source frame without image") {
+    PipelineInput<S> in = synthetic_pipeline_input<S>(tiny_input(10), 1);
+    in.images[4] = Image<S>();
+    REQUIRE_THROWS_WITH(run_pipeline(in, p, dir.string()), Catch::Contains("005.png") && Catch::Contains("no image"));
+  }
+  SECTION("missing frames in a COLMAP dataset") {
+    const SyntheticInput<S> syn = make_synthetic_input<S>(tiny_input(10));
+    const fs::path data = dir / "dataset";
+    fs::create_directories(data / "images");
+    fs::create_directories(data / "sparse" / "0");
+    write_colmap_text((data / "sparse" / "0").string(), syn.recorded);
+    const Image<S> grey(tiny_input().width, tiny_input().height, 3, S(0.5));
+    for (int i = 0; i < 20; ++i) write_png((data / "images" / syn.recorded[std::size_t(i)].name).string(), grey);
+    REQUIRE_THROWS_WITH(load_colmap_input<S>(data.string(), "1-10", 32, 32),
+                        Catch::Contains("021.png") && Catch::Contains("missing"));
+    // The frames that exist load.
+    fs::remove_all(data / "sparse");
+    fs::create_directories(data / "sparse" / "0");
+    std::vector<FrameCamera<S>> first(syn.recorded.begin(), syn.recorded.begin() + 20);
+    write_colmap_text((data / "sparse" / "0").string(), first);
+    const auto in = load_colmap_input<S>(data.string(), "1-10", 32, 32);
+    CHECK(in.source.size() == 10);
+    CHECK(in.images[0].width == 32);
+    REQUIRE_THROWS_WITH(load_colmap_input<S>(data.string(), "15-30", 32, 32), Catch::Contains("30"));
+  }
+  SECTION("unknown provider") {
+    p.completion = "magic";
+    const PipelineInput<S> in = synthetic_pipeline_input<S>(tiny_input(10), 1);
+    REQUIRE_THROWS_WITH(run_pipeline(in, p, dir.string()), Catch::Contains("unknown completion provider"));
+  }
+  CHECK(read_file_bytes((dir / "orbit.json").string()) == "{\"earlier\": true}\n");
+}
