@@ -22,6 +22,7 @@
 #include "orbitforge/io/transforms_json.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/pipeline/synthetic_input.hpp"
+#include "cli.hpp"
 
 using namespace orbitforge;
 
@@ -40,65 +41,40 @@ struct Args {
   OrbitParams orbit;
 };
 
-int to_int(const std::string& flag, const std::string& v) {
-  std::size_t used = 0;
-  int x = 0;
-  try {
-    x = std::stoi(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  ensure(used == v.size() && !v.empty(), "fit_orbit: ", flag, " expects an integer, got '", v, "'");
-  return x;
-}
-
-double to_double(const std::string& flag, const std::string& v) {
-  std::size_t used = 0;
-  double x = 0;
-  try {
-    x = std::stod(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  ensure(used == v.size() && !v.empty(), "fit_orbit: ", flag, " expects a number, got '", v, "'");
-  return x;
-}
-
 Args parse(int argc, char** argv) {
   Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string f = argv[i];
-    auto value = [&]() -> std::string {
-      ensure(i + 1 < argc, "fit_orbit: ", f, " needs a value");
-      return argv[++i];
-    };
-    if (f == "--colmap") a.colmap = value();
-    else if (f == "--transforms") a.transforms = value();
-    else if (f == "--npy-extrinsics") a.npy_ext = value();
-    else if (f == "--npy-intrinsics") a.npy_int = value();
-    else if (f == "--npy-size") a.npy_size = value();
+  cli::ArgWalker w("fit_orbit", argc, argv);
+  auto integer = [&](long lo) { const std::string f = w.flag(); return int(cli::parse_int("fit_orbit", f, w.value(), lo)); };
+  while (w.next()) {
+    const std::string f = w.flag();
+    if (f == "--colmap") a.colmap = w.value();
+    else if (f == "--transforms") a.transforms = w.value();
+    else if (f == "--npy-extrinsics") a.npy_ext = w.value();
+    else if (f == "--npy-intrinsics") a.npy_int = w.value();
+    else if (f == "--npy-size") a.npy_size = w.value();
     else if (f == "--synthetic") a.synthetic = true;
-    else if (f == "--frames") a.frames = value();
-    else if (f == "--views") a.orbit.views = to_int(f, value());
-    else if (f == "--width") a.orbit.width = to_int(f, value());
-    else if (f == "--height") a.orbit.height = to_int(f, value());
-    else if (f == "--elevation-offset") a.orbit.elevation_offset_deg = to_double(f, value());
-    else if (f == "--circle-fit") a.circle = value();
-    else if (f == "--anchors") a.anchors = value();
-    else if (f == "--out") a.out = value();
-    else if (f == "--export-colmap") a.export_colmap = value();
-    else if (f == "--export-transforms") a.export_transforms = value();
-    else fail("fit_orbit: unknown argument '", f, "'");
+    else if (f == "--frames") a.frames = w.value();
+    else if (f == "--views") a.orbit.views = integer(3);
+    else if (f == "--width") a.orbit.width = integer(1);
+    else if (f == "--height") a.orbit.height = integer(1);
+    else if (f == "--elevation-offset") a.orbit.elevation_offset_deg = cli::parse_double("fit_orbit", f, w.value());
+    else if (f == "--circle-fit") a.circle = w.value();
+    else if (f == "--anchors") a.anchors = w.value();
+    else if (f == "--out") a.out = w.value();
+    else if (f == "--export-colmap") a.export_colmap = w.value();
+    else if (f == "--export-transforms") a.export_transforms = w.value();
+    else w.unknown();
   }
   const int inputs = int(!a.colmap.empty()) + int(!a.transforms.empty()) + int(!a.npy_ext.empty() || !a.npy_int.empty()) +
                      int(a.synthetic);
-  ensure(inputs == 1, "fit_orbit: give exactly one input: --colmap, --transforms, --npy-extrinsics/--npy-intrinsics "
-                      "or --synthetic");
-  ensure(!a.out.empty(), "fit_orbit: --out orbit.json is required");
-  ensure(a.circle == "geometric" || a.circle == "kasa", "fit_orbit: --circle-fit must be geometric or kasa");
+  auto usage = [](bool ok, const char* message) {
+    if (!ok) throw cli::UsageError(std::string("fit_orbit: ") + message);
+  };
+  usage(inputs == 1, "give exactly one input: --colmap, --transforms, --npy-extrinsics/--npy-intrinsics or --synthetic");
+  usage(!a.out.empty(), "--out orbit.json is required");
+  usage(a.circle == "geometric" || a.circle == "kasa", "--circle-fit must be geometric or kasa");
   a.orbit.circle_fit = a.circle == "kasa" ? CircleFitMethod::kasa : CircleFitMethod::geometric;
-  ensure(a.anchors == "source_aligned" || a.anchors == "target_half",
-         "fit_orbit: --anchors must be source_aligned or target_half");
+  usage(a.anchors == "source_aligned" || a.anchors == "target_half", "--anchors must be source_aligned or target_half");
   return a;
 }
 
@@ -126,7 +102,7 @@ int main(int argc, char** argv) {
     std::cout << kUsage;
     return argc == 1 ? 2 : 0;
   }
-  try {
+  return cli::run([&] {
     const Args a = parse(argc, argv);
     auto cams = load_cameras(a);
     if (!a.frames.empty()) cams = select_frames(cams, parse_frame_range(a.frames));
@@ -157,8 +133,5 @@ int main(int argc, char** argv) {
               << " (index error mean " << layout.anchor_error_mean << ", max " << layout.anchor_error_max << ")\n"
               << "fit_orbit: wrote " << a.out << "\n";
     return 0;
-  } catch (const std::exception& e) {
-    std::cerr << e.what() << "\n";
-    return 1;
-  }
+  });
 }

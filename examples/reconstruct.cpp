@@ -33,6 +33,7 @@
 #include "orbitforge/metrics/image.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
+#include "cli.hpp"
 
 using namespace orbitforge;
 using S = float;
@@ -44,9 +45,7 @@ const char* kUsage =
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
     "                   [--minutes M] [--eval-every N] [--seed S] --out DIR\n";
 
-struct UsageError : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
+using cli::UsageError;
 
 struct Args {
   std::string colmap, frames, out;
@@ -59,30 +58,10 @@ struct Args {
 };
 
 long to_long(const std::string& flag, const std::string& v, long lo) {
-  std::size_t used = 0;
-  long x = 0;
-  try {
-    x = std::stol(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  if (used != v.size() || v.empty() || x < lo)
-    throw UsageError("reconstruct: " + flag + " expects an integer >= " + std::to_string(lo) + ", got '" + v + "'");
-  return x;
+  return cli::parse_int("reconstruct", flag, v, lo);
 }
 
-double to_double(const std::string& flag, const std::string& v) {
-  std::size_t used = 0;
-  double x = 0;
-  try {
-    x = std::stod(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  if (used != v.size() || v.empty() || !std::isfinite(x))
-    throw UsageError("reconstruct: " + flag + " expects a number, got '" + v + "'");
-  return x;
-}
+double to_double(const std::string& flag, const std::string& v) { return cli::parse_double("reconstruct", flag, v); }
 
 Args parse(int argc, char** argv) {
   Args a;
@@ -107,19 +86,7 @@ Args parse(int argc, char** argv) {
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
     } else if (f == "--deformable") a.deformable = true;
     else if (f == "--background") {
-      const std::string v = value();
-      std::array<double, 3> c{};
-      std::size_t pos = 0;
-      for (int k = 0; k < 3; ++k) {
-        const std::size_t comma = v.find(',', pos);
-        if ((k < 2) != (comma != std::string::npos))
-          throw UsageError("reconstruct: --background expects r,g,b (e.g. 1,1,1), got '" + v + "'");
-        c[std::size_t(k)] = to_double(f, v.substr(pos, k < 2 ? comma - pos : std::string::npos));
-        if (c[std::size_t(k)] < 0 || c[std::size_t(k)] > 1)
-          throw UsageError("reconstruct: --background components must be in [0, 1], got '" + v + "'");
-        pos = comma + 1;
-      }
-      a.background = c;
+      a.background = cli::parse_rgb("reconstruct", f, value());
     } else if (f == "--out") a.out = value();
     else if (f == "-h" || f == "--help") {
       std::cout << kUsage;

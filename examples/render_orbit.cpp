@@ -17,6 +17,7 @@
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "cli.hpp"
 
 using namespace orbitforge;
 
@@ -26,18 +27,6 @@ const char* kUsage =
     "usage: render_orbit --ply scene.ply (--camera cam.json | --orbit orbit.json [--every K]) --out DIR\n"
     "                    [--format png|pfm] [--background r,g,b] [--threads N] [--stats]\n";
 
-int to_int(const std::string& flag, const std::string& v) {
-  std::size_t used = 0;
-  int x = 0;
-  try {
-    x = std::stoi(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  ensure(used == v.size() && !v.empty(), "render_orbit: ", flag, " expects an integer, got '", v, "'");
-  return x;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -45,42 +34,36 @@ int main(int argc, char** argv) {
     std::cout << kUsage;
     return argc == 1 ? 2 : 0;
   }
-  try {
+  return cli::run([&] {
     std::string ply, camera_file, orbit_file, out, format = "png";
     int every = 1, threads = 0;
     bool stats = false;
     RenderParams<float> params;
-    for (int i = 1; i < argc; ++i) {
-      const std::string f = argv[i];
-      auto value = [&]() -> std::string {
-        ensure(i + 1 < argc, "render_orbit: ", f, " needs a value");
-        return argv[++i];
-      };
-      if (f == "--ply") ply = value();
-      else if (f == "--camera") camera_file = value();
-      else if (f == "--orbit") orbit_file = value();
-      else if (f == "--every") every = to_int(f, value());
-      else if (f == "--out") out = value();
-      else if (f == "--format") format = value();
-      else if (f == "--threads") threads = to_int(f, value());
+    cli::ArgWalker w("render_orbit", argc, argv);
+    while (w.next()) {
+      const std::string f = w.flag();
+      if (f == "--ply") ply = w.value();
+      else if (f == "--camera") camera_file = w.value();
+      else if (f == "--orbit") orbit_file = w.value();
+      else if (f == "--every") every = int(cli::parse_int("render_orbit", f, w.value(), 1));
+      else if (f == "--out") out = w.value();
+      else if (f == "--format") format = w.value();
+      else if (f == "--threads") threads = int(cli::parse_int("render_orbit", f, w.value(), 0));
       else if (f == "--stats") stats = true;
       else if (f == "--background") {
-        const std::string v = value();
-        float r, g, b;
-        char extra;
-        ensure(std::sscanf(v.c_str(), "%f,%f,%f%c", &r, &g, &b, &extra) == 3,
-               "render_orbit: --background expects r,g,b in [0,1], got '", v, "'");
-        params.background = {r, g, b};
+        const auto c = cli::parse_rgb("render_orbit", f, w.value());
+        params.background = {float(c[0]), float(c[1]), float(c[2])};
       } else {
-        fail("render_orbit: unknown argument '", f, "'");
+        w.unknown();
       }
     }
-    ensure(!ply.empty(), "render_orbit: --ply is required");
-    ensure(!out.empty(), "render_orbit: --out DIR is required");
-    ensure(camera_file.empty() != orbit_file.empty(), "render_orbit: give exactly one of --camera and --orbit");
-    ensure(format == "png" || format == "pfm", "render_orbit: --format must be png or pfm");
-    ensure(every >= 1, "render_orbit: --every must be >= 1");
-    ensure(threads >= 0, "render_orbit: --threads must be >= 0");
+    auto usage = [](bool ok, const char* message) {
+      if (!ok) throw cli::UsageError(std::string("render_orbit: ") + message);
+    };
+    usage(!ply.empty(), "--ply is required");
+    usage(!out.empty(), "--out DIR is required");
+    usage(camera_file.empty() != orbit_file.empty(), "give exactly one of --camera and --orbit");
+    usage(format == "png" || format == "pfm", "--format must be png or pfm");
     params.threads = threads;
 
     const auto scene = read_ply<float>(ply);
@@ -112,8 +95,5 @@ int main(int argc, char** argv) {
     }
     if (!stats) std::cout << "render_orbit: wrote " << (cameras.size() + every - 1) / every << " frames to " << out << "\n";
     return 0;
-  } catch (const std::exception& e) {
-    std::cerr << e.what() << "\n";
-    return 1;
-  }
+  });
 }
