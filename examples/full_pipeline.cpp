@@ -113,9 +113,9 @@ int main(int argc, char** argv) {
       sp.focal = 160.0 * sp.height / 128.0;
       if (out.empty()) out = "out/pipeline";
       if (argc == 1) {
-        p.iters_g0 = p.iters_g1 = 1500;
+        p.iters_g0 = p.iters_g1 = 1000;
         p.orbit.views = 121;
-        p.init_points = 8000;
+        p.init_points = 5000;
         p.median_samples = 64;
       }
       input = synthetic_pipeline_input<S>(sp, p.threads);
