@@ -54,8 +54,8 @@ SyntheticInputParams tiny_input(int source_frames = 33) {
 PipelineParams tiny_params() {
   PipelineParams p;
   p.orbit.views = 73;
-  p.iters_g0 = p.iters_g1 = kQuick ? 60 : 150;
-  p.init_points = kQuick ? 400 : 1000;
+  p.iters_g0 = p.iters_g1 = kQuick ? 60 : 500;
+  p.init_points = kQuick ? 400 : 3000;
   p.median_samples = 16;
   p.train.field.width = 32;
   p.train.field.depth = 2;
