@@ -80,7 +80,7 @@ inline std::string report_markdown(const nlohmann::json& r) {
   md << "## Orbit fitting diagnostics\n\n| | |\n|---|---|\n";
   if (r.contains("diagnostics") && r["diagnostics"].is_object())
     for (auto it = r["diagnostics"].begin(); it != r["diagnostics"].end(); ++it)
-      if (!it.value().is_array()) md << "| " << it.key() << " | " << num(it.value(), 3) << " |\n";
+      if (it.value().is_primitive()) md << "| " << it.key() << " | " << num(it.value(), 3) << " |\n";
   md << "\n## Pictures\n\n![contact sheet](contact_sheet.png)\n\n![support mask](support_mask.png) "
         "![top view](top_view.png)\n";
   return md.str();
