@@ -29,16 +29,19 @@ LossWeights random_weights(int w, int h, std::uint32_t seed, bool alpha, bool de
 }
 
 template <class B = simd::native_batch<double>>
-double loss(const ProjectedSplats<double>& s, int w, int h, int tile, const RasterParams<double>& p, const LossWeights& lw) {
+// Accumulated and returned in long double: rounding the sum to double (eps * |L|)
+// was the dominant round-off in the finite differences below.
+long double loss(const ProjectedSplats<double>& s, int w, int h, int tile, const RasterParams<double>& p,
+                 const LossWeights& lw) {
   BinWorkspace<double> bins;
   bin_splats(s, w, h, tile, bins);
   RasterOutput<double> out;
   RasterWorkspace<double> ws;
   rasterize_with<B>(bins, p, out, ws);
-  double L = 0;
-  for (std::size_t i = 0; i < out.color.data.size(); ++i) L += lw.wc.data[i] * out.color.data[i];
+  long double L = 0;
+  for (std::size_t i = 0; i < out.color.data.size(); ++i) L += (long double)lw.wc.data[i] * out.color.data[i];
   for (std::size_t i = 0; i < out.depth.data.size(); ++i)
-    L += lw.wa.data[i] * (1 - out.transmittance.data[i]) + lw.wd.data[i] * out.depth.data[i];
+    L += (long double)lw.wa.data[i] * (1 - out.transmittance.data[i]) + (long double)lw.wd.data[i] * out.depth.data[i];
   return L;
 }
 
@@ -91,11 +94,11 @@ void check_fd(ProjectedSplats<double> s, int w, int h, int tile, bool alpha, boo
       const double x0 = v[i];
       const double hstep = steps[f];
       v[i] = x0 + hstep;
-      const double lp = loss(s, w, h, tile, p, lw);
+      const long double lp = loss(s, w, h, tile, p, lw);
       v[i] = x0 - hstep;
-      const double lm = loss(s, w, h, tile, p, lw);
+      const long double lm = loss(s, w, h, tile, p, lw);
       v[i] = x0;
-      const double fd = (lp - lm) / (2 * hstep);
+      const double fd = double((lp - lm) / (2 * hstep));
       const double an = (*grad_field(g.splats, f))[i];
       const double err = std::abs(fd - an) / std::max({std::abs(fd), 1e-2 * scale, 1e-12});
       INFO(field_names[f] << " of Gaussian " << i << ": analytic " << an << " fd " << fd);
