@@ -206,3 +206,26 @@ TEST_CASE("fast exp stays close to the exact path", "[render]") {
   CHECK(sum / double(a.color.data.size()) < 1e-3);
   CHECK(sum > 0);  // it is a different path
 }
+
+TEST_CASE("binning on several threads gives the same lists as on one", "[render]") {
+  // Enough visible Gaussians for several rank chunks (one per 4096).
+  const int w = 96, h = 80;
+  const auto s = random_splats<float>(20000, w, h, 11);
+  BinWorkspace<float> one, many;
+  bin_splats(s, w, h, 16, one, 1);
+  for (int threads : {2, 3, 5}) {
+    INFO("threads " << threads);
+    bin_splats(s, w, h, 16, many, threads);
+    REQUIRE(many.visible() == one.visible());
+    REQUIRE(many.visible() > 3 * 4096);
+    CHECK(many.order == one.order);
+    CHECK(many.tile_offsets == one.tile_offsets);
+    CHECK(many.tile_ranks == one.tile_ranks);
+    CHECK(many.entry_slot == one.entry_slot);
+    CHECK(many.rank_offsets == one.rank_offsets);
+    // The two layouts index the same entries: slot is a permutation of [0, pairs).
+    std::vector<char> seen(many.pairs(), 0);
+    for (auto e : many.entry_slot) seen[e] = 1;
+    CHECK(std::count(seen.begin(), seen.end(), 1) == std::ptrdiff_t(many.pairs()));
+  }
+}

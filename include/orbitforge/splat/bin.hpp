@@ -14,7 +14,8 @@
 //             the tiles its rect touches (tiles it cannot reach are skipped)
 //
 // Built with a counting pass and a prefix sum into caller-owned buffers that are
-// reused across frames: no allocation once the workspace has grown.
+// reused across frames: no allocation once the workspace has grown. The counting
+// and filling passes run on `threads` threads (same result for any count).
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -25,6 +26,7 @@
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/splat/projected.hpp"
 
 namespace orbitforge {
@@ -85,7 +87,8 @@ struct BinWorkspace {
   std::vector<std::int32_t> perm_, idx_tmp_;
   std::vector<SplatRecord<Scalar>> packed_;
   std::vector<std::array<std::int32_t, 5>> packed_boxes_, boxes_;  // tile range x0, y0, x1, y1; index
-  std::vector<std::uint32_t> cursor_;
+  std::vector<std::uint32_t> chunk_counts_;  // [chunks][tiles] counts, then cursors
+  std::vector<std::uint64_t> chunk_entries_; // [chunks + 1] rank-major entry offsets
 };
 
 namespace detail {
@@ -138,7 +141,8 @@ void radix_sort_stable(std::vector<Key>& keys, std::vector<std::int32_t>& idx, s
 // Throws orbitforge::Error when the splat arrays disagree in length or a visible
 // splat has a non-finite field or a rect outside the image.
 template <class Scalar>
-void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int tile_size, BinWorkspace<Scalar>& ws) {
+void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int tile_size, BinWorkspace<Scalar>& ws,
+                int threads = 1) {
   using clock = std::chrono::steady_clock;
   const auto t0 = clock::now();
   const std::size_t n = s.size();
@@ -151,92 +155,136 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.grid = TileGrid(width, height, tile_size);
   const TileGrid& g = ws.grid;
 
-  // One sequential pass over the input: visible Gaussians are packed (in index
-  // order) with their sort keys and tile ranges; the sort then permutes whole
-  // records, so the input arrays are never read in random order.
+  // Visible Gaussians are packed (in index order) with their sort keys and tile
+  // ranges; the sort then permutes whole records, so the input arrays are never
+  // read in random order. Contiguous index chunks count their visible Gaussians,
+  // then pack them at their prefix-sum offsets (same result for any thread count).
   using Key = typename BinWorkspace<Scalar>::Key;
   const int ts = g.tile_size;
-  ws.keys_.clear();
-  ws.perm_.clear();
-  ws.packed_.clear();
-  ws.packed_boxes_.clear();
-  for (std::size_t i = 0; i < n; ++i) {
-    if (s.radius[i] <= 0) continue;
-    const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
-    if (x0 > x1 || y0 > y1) continue;
-    ensure(x0 >= 0 && y0 >= 0 && x1 < width && y1 < height, "bin_splats: Gaussian ", i, " has rect [", x0, ",", x1,
-           "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
-    SplatRecord<Scalar> rec;
-    rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
-    rec.conic_a = s.conic_a[i]; rec.conic_b = s.conic_b[i]; rec.conic_c = s.conic_c[i];
-    rec.opacity = s.opacity[i];
-    rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
-    rec.depth = s.depth[i];
-    rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
-    rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
-    rec.pad_[0] = rec.pad_[1] = Scalar(0);
-    bool finite = true;
-    for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
-    ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
-    ws.perm_.push_back(std::int32_t(ws.packed_.size()));
-    ws.packed_.push_back(rec);
-    ws.packed_boxes_.push_back({{x0 / ts, y0 / ts, x1 / ts, y1 / ts, std::int32_t(i)}});
-    ws.keys_.push_back(detail::sortable_key<Key>(rec.depth));
-  }
+  auto visible = [&s](std::size_t i) {
+    return s.radius[i] > 0 && s.rect_x0[i] <= s.rect_x1[i] && s.rect_y0[i] <= s.rect_y1[i];
+  };
+  const std::size_t in_chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), n / 8192));
+  ws.chunk_entries_.assign(in_chunks + 1, 0u);
+  parallel_for(in_chunks, threads, [&](std::size_t c, int) {
+    std::uint64_t m = 0;
+    for (std::size_t i = n * c / in_chunks, end = n * (c + 1) / in_chunks; i < end; ++i) m += visible(i) ? 1 : 0;
+    ws.chunk_entries_[c + 1] = m;
+  });
+  for (std::size_t c = 0; c < in_chunks; ++c) ws.chunk_entries_[c + 1] += ws.chunk_entries_[c];
+  const std::size_t packed = std::size_t(ws.chunk_entries_[in_chunks]);
+  ws.keys_.resize(packed);
+  ws.perm_.resize(packed);
+  ws.packed_.resize(packed);
+  ws.packed_boxes_.resize(packed);
+  parallel_for(in_chunks, threads, [&](std::size_t c, int) {
+    std::size_t k = std::size_t(ws.chunk_entries_[c]);
+    for (std::size_t i = n * c / in_chunks, end = n * (c + 1) / in_chunks; i < end; ++i) {
+      if (!visible(i)) continue;
+      const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
+      ensure(x0 >= 0 && y0 >= 0 && x1 < width && y1 < height, "bin_splats: Gaussian ", i, " has rect [", x0, ",", x1,
+             "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
+      SplatRecord<Scalar>& rec = ws.packed_[k];
+      rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
+      rec.conic_a = s.conic_a[i]; rec.conic_b = s.conic_b[i]; rec.conic_c = s.conic_c[i];
+      rec.opacity = s.opacity[i];
+      rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
+      rec.depth = s.depth[i];
+      rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
+      rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
+      rec.pad_[0] = rec.pad_[1] = Scalar(0);
+      bool finite = true;
+      for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
+      ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
+      ws.perm_[k] = std::int32_t(k);
+      ws.packed_boxes_[k] = {{x0 / ts, y0 / ts, x1 / ts, y1 / ts, std::int32_t(i)}};
+      ws.keys_[k] = detail::sortable_key<Key>(rec.depth);
+      ++k;
+    }
+  });
   detail::radix_sort_stable(ws.keys_, ws.perm_, ws.keys_tmp_, ws.idx_tmp_);
   const auto t1 = clock::now();
 
-  // Permute into rank order and count tile entries.
+  // Permute into rank order and count tile entries, then fill the lists: each
+  // of C contiguous rank chunks counts into its own per-tile array, so chunk c's
+  // entries of tile t start after those of chunks < c and the result is the same
+  // as one sequential pass, for any thread count.
   const std::size_t v = ws.perm_.size();
   ws.records.resize(v);
   ws.order.resize(v);
   ws.boxes_.resize(v);
-  ws.tile_offsets.assign(std::size_t(g.tile_count()) + 1, 0u);
-  std::uint32_t* counts = ws.tile_offsets.data() + 1;
+  const std::size_t tiles = std::size_t(g.tile_count());
   const int tiles_x = g.tiles_x;
-  for (std::size_t r = 0; r < v; ++r) {
-    const std::size_t p = std::size_t(ws.perm_[r]);
+  const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), v / 4096));
+  ws.chunk_counts_.assign(chunks * tiles, 0u);
+  ws.chunk_entries_.assign(chunks + 1, 0u);
+  auto chunk_range = [&](std::size_t c) { return std::pair<std::size_t, std::size_t>(v * c / chunks, v * (c + 1) / chunks); };
+  parallel_for(chunks, threads, [&](std::size_t c, int) {
+    const auto [r0, r1] = chunk_range(c);
+    std::uint32_t* counts = ws.chunk_counts_.data() + c * tiles;
+    std::uint64_t entries = 0;
+    for (std::size_t r = r0; r < r1; ++r) {
+      const std::size_t p = std::size_t(ws.perm_[r]);
 #if defined(__GNUC__)
-    // The permuted reads miss the cache; ask for them well ahead.
-    if (r + 16 < v) {
-      __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
-      __builtin_prefetch(&ws.packed_boxes_[std::size_t(ws.perm_[r + 16])]);
-    }
+      // The permuted reads miss the cache; ask for them well ahead.
+      if (r + 16 < r1) {
+        __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
+        __builtin_prefetch(&ws.packed_boxes_[std::size_t(ws.perm_[r + 16])]);
+      }
 #endif
-    ws.records[r] = ws.packed_[p];
-    const auto box = ws.packed_boxes_[p];
-    ws.boxes_[r] = box;
-    ws.order[r] = box[4];
-    for (int ty = box[1]; ty <= box[3]; ++ty)
-      for (int tx = box[0]; tx <= box[2]; ++tx) ++counts[ty * tiles_x + tx];
-  }
-  // Prefix sum, then fill in rank order so each tile's list comes out front to back.
+      ws.records[r] = ws.packed_[p];
+      const auto box = ws.packed_boxes_[p];
+      ws.boxes_[r] = box;
+      ws.order[r] = box[4];
+      for (int ty = box[1]; ty <= box[3]; ++ty)
+        for (int tx = box[0]; tx <= box[2]; ++tx) ++counts[ty * tiles_x + tx];
+      entries += std::uint64_t(box[3] - box[1] + 1) * std::uint64_t(box[2] - box[0] + 1);
+    }
+    ws.chunk_entries_[c + 1] = entries;
+  });
+  // Prefix sums: tile offsets over all chunks, then each chunk's start within a tile.
+  ws.tile_offsets.assign(tiles + 1, 0u);
   std::uint64_t total = 0;
-  for (std::size_t t = 1; t < ws.tile_offsets.size(); ++t) {
+  for (std::size_t t = 0; t < tiles; ++t) {
+    std::uint64_t in_tile = 0;
+    for (std::size_t c = 0; c < chunks; ++c) in_tile += ws.chunk_counts_[c * tiles + t];
     // The rasterizer counts list positions in Scalar lanes: keep them exact.
-    ensure(ws.tile_offsets[t] < (1u << 24), "bin_splats: a tile lists ", ws.tile_offsets[t], " Gaussians (limit 2^24)");
-    total += ws.tile_offsets[t];
+    ensure(in_tile < (1u << 24), "bin_splats: a tile lists ", in_tile, " Gaussians (limit 2^24)");
+    total += in_tile;
     ensure(total < (std::uint64_t(1) << 32), "bin_splats: more than 2^32 tile entries");
-    ws.tile_offsets[t] = std::uint32_t(total);
+    ws.tile_offsets[t + 1] = std::uint32_t(total);
   }
+  for (std::size_t t = 0; t < tiles; ++t) {
+    std::uint32_t start = ws.tile_offsets[t];
+    for (std::size_t c = 0; c < chunks; ++c) {
+      std::uint32_t& cell = ws.chunk_counts_[c * tiles + t];
+      const std::uint32_t n_c = cell;
+      cell = start;  // now chunk c's cursor in tile t
+      start += n_c;
+    }
+  }
+  for (std::size_t c = 0; c < chunks; ++c) ws.chunk_entries_[c + 1] += ws.chunk_entries_[c];
   ws.tile_ranks.resize(std::size_t(total));
-  ws.cursor_.assign(ws.tile_offsets.begin(), ws.tile_offsets.end() - 1);
   ws.entry_slot.resize(std::size_t(total));
   ws.rank_offsets.resize(v + 1);
-  std::uint32_t* cursor = ws.cursor_.data();
-  std::int32_t* out = ws.tile_ranks.data();
-  std::uint32_t* slot = ws.entry_slot.data();
-  std::uint32_t k = 0;  // rank-major position of the next entry
-  for (std::size_t r = 0; r < v; ++r) {
-    const auto box = ws.boxes_[r];
-    ws.rank_offsets[r] = k;
-    for (int ty = box[1]; ty <= box[3]; ++ty)
-      for (int tx = box[0]; tx <= box[2]; ++tx) {
-        const std::uint32_t e = cursor[ty * tiles_x + tx]++;
-        out[e] = std::int32_t(r);
-        slot[e] = k++;
-      }
-  }
+  parallel_for(chunks, threads, [&](std::size_t c, int) {
+    const auto [r0, r1] = chunk_range(c);
+    std::uint32_t* cursor = ws.chunk_counts_.data() + c * tiles;
+    std::int32_t* out = ws.tile_ranks.data();
+    std::uint32_t* slot = ws.entry_slot.data();
+    std::uint32_t k = std::uint32_t(ws.chunk_entries_[c]);  // rank-major position of the next entry
+    for (std::size_t r = r0; r < r1; ++r) {
+      const auto box = ws.boxes_[r];
+      ws.rank_offsets[r] = k;
+      for (int ty = box[1]; ty <= box[3]; ++ty)
+        for (int tx = box[0]; tx <= box[2]; ++tx) {
+          const std::uint32_t e = cursor[ty * tiles_x + tx]++;
+          out[e] = std::int32_t(r);
+          slot[e] = k++;
+        }
+    }
+  });
+  const std::uint32_t k = std::uint32_t(total);
   ws.rank_offsets[v] = k;
   const auto t2 = clock::now();
   ws.sort_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();

@@ -71,7 +71,7 @@ class Renderer {
     out_.frame = {};
     project_scene(scene, camera, pp, splats_, &out_.frame.projection, threads);
     const auto t1 = clock::now();
-    bin_splats(splats_, camera.intrinsics.width, camera.intrinsics.height, params_.tile_size, bins_);
+    bin_splats(splats_, camera.intrinsics.width, camera.intrinsics.height, params_.tile_size, bins_, threads);
     rasterize(bins_, raster_params(threads), static_cast<RasterOutput<Scalar>&>(out_), ws_);
     const auto t2 = clock::now();
     RenderStats& st = out_.frame;
