@@ -1,0 +1,386 @@
+#pragma once
+// The audit over many inputs: shard selection and one table of every input's
+// report.json (coverage, orbit diagnostics, support-stratified quality,
+// completion metrics, stage times, static-proxy flicker when present), with
+// median and P90 rows, as JSON, Markdown and CSV.
+//
+// Aggregation only: this header does not run the pipeline (examples/audit.cpp
+// does), so it stays cheap to compile (nlohmann json and std).
+//
+// Summary rows: over the inputs that succeeded and have the value. Quantile q of
+// n sorted values x_0..x_{n-1}: h = (n-1) q, x_floor(h) + (h - floor(h)) (x_ceil(h) -
+// x_floor(h)) (linear interpolation between order statistics, numpy's default);
+// the median is q = 0.5 (mean of the middle two for even n), P90 is q = 0.9.
+// Derived columns (the gain) are computed per input, then summarised.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/io/atomic_file.hpp"
+
+namespace orbitforge {
+
+// Shard i of n (1-based), from "i/n".
+struct AuditShard {
+  int index = 1, count = 1;
+};
+
+inline AuditShard parse_shard(const std::string& text) {
+  const std::size_t slash = text.find('/');
+  auto part = [&](const std::string& s, const char* what) {
+    std::size_t used = 0;
+    long v = 0;
+    try {
+      v = std::stol(s, &used);
+    } catch (...) {
+      used = 0;
+    }
+    ensure(!s.empty() && used == s.size() && s.find_first_not_of("0123456789") == std::string::npos &&
+               v >= 1 && v <= 100000,
+           "shard '", text, "': ", what, " must be a positive integer, got '", s, "'");
+    return int(v);
+  };
+  ensure(slash != std::string::npos, "shard '", text, "': expected i/n (for example 2/5)");
+  AuditShard s;
+  s.index = part(text.substr(0, slash), "i");
+  s.count = part(text.substr(slash + 1), "n");
+  ensure(s.index <= s.count, "shard '", text, "': i must lie in [1, n]");
+  return s;
+}
+
+// The inputs of one shard: sorted by path, input k (0-based, after sorting) goes to
+// shard k % n + 1, so the shards partition the inputs whatever order they came in.
+inline std::vector<std::string> shard_inputs(std::vector<std::string> inputs, AuditShard shard) {
+  ensure(shard.count >= 1 && shard.index >= 1 && shard.index <= shard.count, "shard ", shard.index, "/",
+         shard.count, ": i must lie in [1, n]");
+  std::sort(inputs.begin(), inputs.end());
+  std::vector<std::string> mine;
+  for (std::size_t k = 0; k < inputs.size(); ++k)
+    if (int(k % std::size_t(shard.count)) + 1 == shard.index) mine.push_back(inputs[k]);
+  return mine;
+}
+
+// One input: its name, its report.json (with orbit.json's "orbit" object merged in
+// under "orbit" when available) and, when it failed, why (non-empty).
+struct AuditRow {
+  std::string name;
+  nlohmann::json report;
+  std::string error;
+  std::string status;  // empty: "ok" or "failed" from `error`; anything but "ok" (e.g. "stopped") counts as failed
+};
+
+namespace audit_detail {
+
+// One column of the table.
+struct Column {
+  const char* key;      // JSON / CSV name
+  const char* title;    // Markdown header
+  const char* section;  // Markdown table it belongs to
+  const char* pointer;  // JSON pointer into the report ("" for derived columns)
+  int digits;           // Markdown decimals
+};
+
+inline const std::vector<Column>& columns() {
+  static const std::vector<Column> c = {
+      {"R0_A", "R0 A (deg)", "Coverage", "/coverage/R0/A", 1},
+      {"R1_A", "R1 A (deg)", "Coverage", "/coverage/R1/A", 1},
+      {"R1_M", "R1 M", "Coverage", "/coverage/R1/M", 3},
+      {"R1_closed", "R1 closed", "Coverage", "/coverage/R1/closed", 0},
+      {"lookat_error_deg", "look-at error (deg)", "Orbit diagnostics", "/diagnostics/lookat_error_deg", 3},
+      {"radius", "radius", "Orbit diagnostics", "/orbit/radius", 4},
+      {"plane_rms", "plane RMS (height std)", "Orbit diagnostics", "/diagnostics/height_std", 4},
+      {"circle_rmse", "circle RMSE", "Orbit diagnostics", "/diagnostics/circle_rmse", 4},
+      {"normal_rule", "normal rule", "Orbit diagnostics", "/diagnostics/normal_rule", 0},
+      {"source_span_deg", "source span (deg)", "Orbit diagnostics", "/diagnostics/source_span_deg", 1},
+      {"R0_supported_psnr", "R0 sup PSNR", "Quality", "/quality/R0/supported/psnr", 2},
+      {"R0_supported_ssim", "R0 sup SSIM", "Quality", "/quality/R0/supported/ssim", 3},
+      {"R1_supported_psnr", "R1 sup PSNR", "Quality", "/quality/R1/supported/psnr", 2},
+      {"R1_supported_ssim", "R1 sup SSIM", "Quality", "/quality/R1/supported/ssim", 3},
+      {"R0_gap_psnr", "R0 gap PSNR", "Quality", "/quality/R0/gap_heldout/psnr", 2},
+      {"R0_gap_ssim", "R0 gap SSIM", "Quality", "/quality/R0/gap_heldout/ssim", 3},
+      {"R1_gap_psnr", "R1 gap PSNR", "Quality", "/quality/R1/gap_heldout/psnr", 2},
+      {"R1_gap_ssim", "R1 gap SSIM", "Quality", "/quality/R1/gap_heldout/ssim", 3},
+      {"gain_gap_psnr", "gain (R1 - R0 gap PSNR)", "Quality", "", 2},
+      {"loop_endpoint_l1", "loop-endpoint L1 (0-255)", "Completion", "/completion/loop_endpoint_l1", 2},
+      {"anchor_error_mean", "anchor index error mean", "Completion", "/completion/anchor_index_error/mean", 2},
+      {"anchor_error_max", "anchor index error max", "Completion", "/completion/anchor_index_error/max", 0},
+      {"seconds_orbit", "orbit (s)", "Stage seconds", "/stages/orbit", 1},
+      {"seconds_g0", "g0 (s)", "Stage seconds", "/stages/g0", 1},
+      {"seconds_completion", "completion (s)", "Stage seconds", "/stages/completion", 1},
+      {"seconds_g1", "g1 (s)", "Stage seconds", "/stages/g1", 1},
+      {"seconds_report", "report (s)", "Stage seconds", "/stages/report", 1},
+      {"total_seconds", "total (s)", "Stage seconds", "/total_seconds", 1},
+      {"static_frame_varying_adjacent_l1", "frame-varying adj L1", "Static proxy",
+       "/static_proxy/frame_varying/adjacent_l1", 3},
+      {"static_frame_varying_adjacent_l1_p95", "frame-varying adj L1 P95", "Static proxy",
+       "/static_proxy/frame_varying/adjacent_l1_p95", 3},
+      {"static_frame_varying_loop_l1", "frame-varying loop L1", "Static proxy", "/static_proxy/frame_varying/loop_l1",
+       3},
+      {"static_fixed_slice_adjacent_l1", "fixed-slice adj L1", "Static proxy", "/static_proxy/fixed_slice/adjacent_l1",
+       3},
+      {"static_fixed_slice_adjacent_l1_p95", "fixed-slice adj L1 P95", "Static proxy",
+       "/static_proxy/fixed_slice/adjacent_l1_p95", 3},
+      {"static_fixed_slice_loop_l1", "fixed-slice loop L1", "Static proxy", "/static_proxy/fixed_slice/loop_l1", 3},
+      {"static_median_adjacent_l1", "median adj L1", "Static proxy", "/static_proxy/median/adjacent_l1", 3},
+      {"static_median_adjacent_l1_p95", "median adj L1 P95", "Static proxy", "/static_proxy/median/adjacent_l1_p95",
+       3},
+      {"static_median_loop_l1", "median loop L1", "Static proxy", "/static_proxy/median/loop_l1", 3},
+  };
+  return c;
+}
+
+inline const std::vector<std::string>& sections() {
+  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Completion",
+                                             "Stage seconds", "Static proxy"};
+  return s;
+}
+
+// The value at a JSON pointer, or null when any step is missing or of the wrong type.
+inline nlohmann::json lookup(const nlohmann::json& j, const std::string& pointer) {
+  if (!j.is_object()) return nullptr;
+  try {
+    const nlohmann::json::json_pointer p(pointer);
+    if (!j.contains(p)) return nullptr;
+    const nlohmann::json& v = j.at(p);
+    if (v.is_number()) {
+      const double d = v.get<double>();
+      if (!std::isfinite(d)) return nullptr;
+    }
+    if (v.is_primitive()) return v;
+    return nullptr;  // objects / arrays are not cells
+  } catch (const nlohmann::json::exception&) {
+    return nullptr;  // e.g. an array where an object was expected
+  }
+}
+
+// Quality means over zero views are not measurements (mean_quality leaves 0).
+inline bool quality_measured(const nlohmann::json& report, const std::string& pointer) {
+  const std::size_t last = pointer.rfind('/');
+  if (pointer.rfind("/quality/", 0) != 0 || last == std::string::npos) return true;
+  const nlohmann::json views = lookup(report, pointer.substr(0, last) + "/views");
+  return !(views.is_number() && views.get<double>() <= 0);
+}
+
+inline nlohmann::json cell(const nlohmann::json& report, const Column& c) {
+  if (std::string(c.key) == "gain_gap_psnr") {
+    const nlohmann::json r0 = cell(report, {"", "", "", "/quality/R0/gap_heldout/psnr", 0});
+    const nlohmann::json r1 = cell(report, {"", "", "", "/quality/R1/gap_heldout/psnr", 0});
+    if (r0.is_number() && r1.is_number()) return r1.get<double>() - r0.get<double>();
+    return nullptr;
+  }
+  if (!quality_measured(report, c.pointer)) return nullptr;
+  return lookup(report, c.pointer);
+}
+
+inline std::string format_number(double d, int digits) {
+  char b[64];
+  std::snprintf(b, sizeof(b), "%.*f", digits, d);
+  return b;
+}
+
+inline std::string markdown_cell(const nlohmann::json& v, int digits) {
+  if (v.is_null()) return "-";
+  if (v.is_boolean()) return v.get<bool>() ? "yes" : "no";
+  if (v.is_number_integer()) return std::to_string(v.get<long long>());
+  if (v.is_number()) return format_number(v.get<double>(), digits);
+  std::string s = v.is_string() ? v.get<std::string>() : v.dump();
+  std::string out;
+  for (char ch : s) {
+    if (ch == '|') out += "\\|";
+    else if (ch == '\n' || ch == '\r') out += ' ';
+    else out += ch;
+  }
+  return out;
+}
+
+inline std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\n\r") == std::string::npos) return s;
+  std::string q = "\"";
+  for (char ch : s) {
+    if (ch == '"') q += '"';
+    q += ch;
+  }
+  return q + "\"";
+}
+
+inline std::string csv_cell(const nlohmann::json& v) {
+  if (v.is_null()) return "";
+  if (v.is_boolean()) return v.get<bool>() ? "true" : "false";
+  if (v.is_number_integer()) return std::to_string(v.get<long long>());
+  if (v.is_number()) {
+    char b[64];
+    std::snprintf(b, sizeof(b), "%.10g", v.get<double>());
+    return b;
+  }
+  return csv_field(v.is_string() ? v.get<std::string>() : v.dump());
+}
+
+}  // namespace audit_detail
+
+// Quantile q in [0, 1] of the values by linear interpolation between order
+// statistics (see the top of this file). Requires at least one value.
+inline double audit_quantile(std::vector<double> values, double q) {
+  ensure(!values.empty(), "audit_quantile: no values");
+  ensure(q >= 0 && q <= 1, "audit_quantile: q must lie in [0, 1], got ", q);
+  std::sort(values.begin(), values.end());
+  const double h = double(values.size() - 1) * q;
+  const std::size_t lo = std::size_t(std::floor(h));
+  const std::size_t hi = std::min(values.size() - 1, lo + 1);
+  return values[lo] + (h - double(lo)) * (values[hi] - values[lo]);
+}
+
+// Reads <dir>/report.json (and orbit.json's "orbit" object, for the radius, when
+// the file exists). A missing or unreadable report makes a failed row, not a throw.
+inline AuditRow read_audit_row(const std::string& name, const std::string& dir) {
+  namespace fs = std::filesystem;
+  AuditRow row;
+  row.name = name;
+  const std::string report_path = (fs::path(dir) / "report.json").string();
+  try {
+    row.report = nlohmann::json::parse(read_file_bytes(report_path));
+    ensure(row.report.is_object(), report_path, ": expected a JSON object");
+  } catch (const nlohmann::json::exception& e) {
+    row.report = nullptr;
+    row.error = report_path + ": not valid JSON: " + e.what();
+  } catch (const std::exception& e) {
+    row.report = nullptr;
+    row.error = e.what();
+  }
+  if (!row.error.empty()) return row;
+  const std::string orbit_path = (fs::path(dir) / "orbit.json").string();
+  std::error_code ec;
+  if (!row.report.contains("orbit") && fs::exists(orbit_path, ec)) {
+    try {
+      const nlohmann::json o = nlohmann::json::parse(read_file_bytes(orbit_path));
+      if (o.is_object() && o.contains("orbit") && o["orbit"].is_object()) row.report["orbit"] = o["orbit"];
+    } catch (const std::exception&) {
+      // The radius column shows "-"; the report itself is fine.
+    }
+  }
+  return row;
+}
+
+// The table: {"columns": [{key, title, section, digits}], "rows": [{name, status,
+// error, values: {key: value or null}}], "summary": [{name: "median" | "P90",
+// values, counts}], "quantiles": how they are computed}.
+inline nlohmann::json audit_table(const std::vector<AuditRow>& rows) {
+  using namespace audit_detail;
+  nlohmann::json table;
+  nlohmann::json cols = nlohmann::json::array();
+  for (const auto& c : columns())
+    cols.push_back({{"key", c.key}, {"title", c.title}, {"section", c.section}, {"digits", c.digits}});
+  table["columns"] = cols;
+  std::map<std::string, std::vector<double>> samples;
+  nlohmann::json out_rows = nlohmann::json::array();
+  for (const auto& r : rows) {
+    // Only successful inputs have cells and enter the summaries.
+    const bool failed = !r.error.empty() || (!r.status.empty() && r.status != "ok");
+    nlohmann::json values = nlohmann::json::object();
+    for (const auto& c : columns()) {
+      const nlohmann::json v = failed ? nlohmann::json() : cell(r.report, c);
+      values[c.key] = v;
+      // Booleans and strings have no median; numbers only.
+      if (v.is_number()) samples[c.key].push_back(v.get<double>());
+    }
+    std::string status = r.status.empty() ? (failed ? "failed" : "ok") : r.status;
+    out_rows.push_back({{"name", r.name}, {"status", status}, {"error", r.error}, {"values", values}});
+  }
+  table["rows"] = out_rows;
+  nlohmann::json summary = nlohmann::json::array();
+  for (const auto& [label, q] : std::vector<std::pair<std::string, double>>{{"median", 0.5}, {"P90", 0.9}}) {
+    nlohmann::json values = nlohmann::json::object(), counts = nlohmann::json::object();
+    for (const auto& c : columns()) {
+      const auto it = samples.find(c.key);
+      const bool have = it != samples.end() && !it->second.empty();
+      values[c.key] = have ? nlohmann::json(audit_quantile(it->second, q)) : nlohmann::json();
+      counts[c.key] = have ? it->second.size() : 0;
+    }
+    summary.push_back({{"name", label}, {"q", q}, {"values", values}, {"counts", counts}});
+  }
+  table["summary"] = summary;
+  table["quantiles"] =
+      "over the inputs that succeeded and have the value; linear interpolation between order statistics: "
+      "h = (n-1) q, x[floor h] + (h - floor h)(x[floor h + 1] - x[floor h]); median q = 0.5, P90 q = 0.9";
+  return table;
+}
+
+// Markdown: a status table (every input), then one table per section with a row
+// per successful input and the median / P90 rows. The static-proxy section only
+// appears when some input has it.
+inline std::string audit_markdown(const nlohmann::json& table) {
+  using audit_detail::markdown_cell;
+  std::ostringstream md;
+  const nlohmann::json& rows = table.at("rows");
+  const nlohmann::json& cols = table.at("columns");
+  md << "# OrbitForge audit\n\n## Inputs\n\n| input | status | error |\n|---|---|---|\n";
+  std::size_t ok = 0;
+  for (const auto& r : rows) {
+    const bool good = r.value("status", std::string()) == "ok";
+    ok += good ? 1 : 0;
+    md << "| " << markdown_cell(r.at("name"), 0) << " | " << markdown_cell(r.at("status"), 0) << " | "
+       << (r.value("error", std::string()).empty() ? std::string("-") : markdown_cell(r.at("error"), 0)) << " |\n";
+  }
+  md << "\n" << ok << " of " << rows.size() << " inputs succeeded. Median and P90 rows: "
+     << table.value("quantiles", std::string()) << ".\n";
+  for (const auto& section : audit_detail::sections()) {
+    std::vector<const nlohmann::json*> sc;
+    for (const auto& c : cols)
+      if (c.at("section").get<std::string>() == section) sc.push_back(&c);
+    if (sc.empty()) continue;
+    bool any = false;
+    for (const auto& r : rows)
+      for (const auto* c : sc)
+        if (r.at("status") == "ok" && !r.at("values").at(c->at("key").get<std::string>()).is_null()) any = true;
+    if (section == "Static proxy" && !any) continue;
+    md << "\n## " << section << "\n\n| input |";
+    for (const auto* c : sc) md << " " << c->at("title").get<std::string>() << " |";
+    md << "\n|---|";
+    for (std::size_t k = 0; k < sc.size(); ++k) md << "---|";
+    md << "\n";
+    auto line = [&](const std::string& name, const nlohmann::json& values) {
+      md << "| " << name << " |";
+      for (const auto* c : sc) {
+        const std::string key = c->at("key").get<std::string>();
+        md << " " << markdown_cell(values.contains(key) ? values.at(key) : nlohmann::json(), c->at("digits").get<int>())
+           << " |";
+      }
+      md << "\n";
+    };
+    for (const auto& r : rows)
+      if (r.at("status") == "ok") line(markdown_cell(r.at("name"), 0), r.at("values"));
+    for (const auto& s : table.at("summary")) line("**" + s.at("name").get<std::string>() + "**", s.at("values"));
+  }
+  return md.str();
+}
+
+// CSV (RFC 4180 quoting): name, status, error, then every column; one line per
+// input, then the median and P90 lines (status "summary"). Missing values are empty.
+inline std::string audit_csv(const nlohmann::json& table) {
+  using audit_detail::csv_cell;
+  std::ostringstream csv;
+  const nlohmann::json& cols = table.at("columns");
+  csv << "name,status,error";
+  for (const auto& c : cols) csv << "," << c.at("key").get<std::string>();
+  csv << "\n";
+  auto line = [&](const nlohmann::json& name, const nlohmann::json& status, const nlohmann::json& error,
+                  const nlohmann::json& values) {
+    csv << csv_cell(name) << "," << csv_cell(status) << "," << csv_cell(error);
+    for (const auto& c : cols) {
+      const std::string key = c.at("key").get<std::string>();
+      csv << "," << csv_cell(values.contains(key) ? values.at(key) : nlohmann::json());
+    }
+    csv << "\n";
+  };
+  for (const auto& r : table.at("rows")) line(r.at("name"), r.at("status"), r.at("error"), r.at("values"));
+  for (const auto& s : table.at("summary")) line(s.at("name"), "summary", "", s.at("values"));
+  return csv.str();
+}
+
+}  // namespace orbitforge
