@@ -197,11 +197,16 @@ TEST_CASE("audit table tolerates missing keys, odd types and unmeasured quality"
   partial["coverage"]["R1"] = json::array();            // wrong type
   partial["diagnostics"]["lookat_error_deg"] = "oops";  // a string where a number belongs: shown as is
   partial["quality"]["R0"]["gap_heldout"]["views"] = 0;  // mean over no views is not a measurement
-  partial["static_proxy"] = {{"median", {{"adjacent_l1", 1.25}, {"loop_l1", 2.5}}}};  // fixed_slice etc. absent
+  // static_proxy.json's layout, with fixed_slice and frame_varying absent.
+  partial["static_proxy"] = {{"views_scored", 12}, {"variants", {{"median", {{"adjacent_l1", 1.25}, {"loop_l1", 2.5}}}}}};
   std::vector<AuditRow> rows = {{"partial", partial, "", ""},
                                 {"empty", json::object(), "", ""},
                                 {"null", json(), "", ""},
-                                {"full", fake_report(100, 300, 20, 22, 50), "", ""}};
+                                {"full", fake_report(100, 300, 20, 22, 50), "", ""},
+                                {"flat_proxy", json::object(), "", ""}};
+  // The layout without the "variants" level is read too.
+  rows.back().report["static_proxy"] = {{"fixed_slice", {{"loop_l1", 7.5}}}};
+  rows.back().report["stages"] = {{"static_proxy", 12.0}};
   json t;
   REQUIRE_NOTHROW(t = audit_table(rows));
   REQUIRE(value(t, "partial", "seconds_g0").is_null());
@@ -212,6 +217,9 @@ TEST_CASE("audit table tolerates missing keys, odd types and unmeasured quality"
   REQUIRE(value(t, "partial", "static_median_adjacent_l1") == 1.25);
   REQUIRE(value(t, "partial", "static_median_adjacent_l1_p95").is_null());
   REQUIRE(value(t, "partial", "static_fixed_slice_loop_l1").is_null());
+  REQUIRE(value(t, "flat_proxy", "static_fixed_slice_loop_l1") == 7.5);
+  REQUIRE(value(t, "flat_proxy", "seconds_static_proxy") == 12.0);
+  REQUIRE(value(t, "partial", "seconds_static_proxy").is_null());
   REQUIRE(value(t, "empty", "R0_A").is_null());
   REQUIRE(value(t, "null", "total_seconds").is_null());
   // Summaries only over inputs that have the value: R1 A only from "full".
@@ -219,8 +227,9 @@ TEST_CASE("audit table tolerates missing keys, odd types and unmeasured quality"
   REQUIRE(t["summary"][0]["counts"]["R1_A"] == 1);
   REQUIRE(value(t, "median", "R0_A").get<double>() == Approx(110.0));
   REQUIRE(t["summary"][0]["counts"]["seconds_g0"] == 1);
-  REQUIRE(value(t, "median", "static_fixed_slice_loop_l1").is_null());
-  REQUIRE(t["summary"][0]["counts"]["static_fixed_slice_loop_l1"] == 0);
+  REQUIRE(value(t, "median", "static_frame_varying_loop_l1").is_null());
+  REQUIRE(t["summary"][0]["counts"]["static_frame_varying_loop_l1"] == 0);
+  REQUIRE(value(t, "median", "static_median_loop_l1") == 2.5);
 
   const std::string md = audit_markdown(t);
   REQUIRE(md.find("Static proxy") != std::string::npos);

@@ -1,7 +1,10 @@
 #pragma once
 // The audit over many inputs: shard selection and one table of every input's
 // report.json (coverage, orbit diagnostics, support-stratified quality,
-// completion metrics, stage times, static-proxy flicker when present), with
+// completion metrics, stage times, static-proxy flicker when present: report.json's
+// "static_proxy" is static_proxy.json, {"variants": {"frame_varying" | "fixed_slice" |
+// "median": {"adjacent_l1", "adjacent_l1_p95", "loop_l1"}}}; the same without the
+// "variants" level is read too), with
 // median and P90 rows, as JSON, Markdown and CSV.
 //
 // Aggregation only: this header does not run the pipeline (examples/audit.cpp
@@ -85,6 +88,7 @@ struct Column {
   const char* section;  // Markdown table it belongs to
   const char* pointer;  // JSON pointer into the report ("" for derived columns)
   int digits;           // Markdown decimals
+  const char* alt = "";  // where older or other report layouts keep it (tried when `pointer` is missing)
 };
 
 inline const std::vector<Column>& columns() {
@@ -113,25 +117,29 @@ inline const std::vector<Column>& columns() {
       {"anchor_error_max", "anchor index error max", "Completion", "/completion/anchor_index_error/max", 0},
       {"seconds_orbit", "orbit (s)", "Stage seconds", "/stages/orbit", 1},
       {"seconds_g0", "g0 (s)", "Stage seconds", "/stages/g0", 1},
+      {"seconds_static_proxy", "static proxy (s)", "Stage seconds", "/stages/static_proxy", 1},
       {"seconds_completion", "completion (s)", "Stage seconds", "/stages/completion", 1},
       {"seconds_g1", "g1 (s)", "Stage seconds", "/stages/g1", 1},
       {"seconds_report", "report (s)", "Stage seconds", "/stages/report", 1},
       {"total_seconds", "total (s)", "Stage seconds", "/total_seconds", 1},
       {"static_frame_varying_adjacent_l1", "frame-varying adj L1", "Static proxy",
-       "/static_proxy/frame_varying/adjacent_l1", 3},
+       "/static_proxy/variants/frame_varying/adjacent_l1", 3, "/static_proxy/frame_varying/adjacent_l1"},
       {"static_frame_varying_adjacent_l1_p95", "frame-varying adj L1 P95", "Static proxy",
-       "/static_proxy/frame_varying/adjacent_l1_p95", 3},
-      {"static_frame_varying_loop_l1", "frame-varying loop L1", "Static proxy", "/static_proxy/frame_varying/loop_l1",
-       3},
-      {"static_fixed_slice_adjacent_l1", "fixed-slice adj L1", "Static proxy", "/static_proxy/fixed_slice/adjacent_l1",
-       3},
+       "/static_proxy/variants/frame_varying/adjacent_l1_p95", 3, "/static_proxy/frame_varying/adjacent_l1_p95"},
+      {"static_frame_varying_loop_l1", "frame-varying loop L1", "Static proxy",
+       "/static_proxy/variants/frame_varying/loop_l1", 3, "/static_proxy/frame_varying/loop_l1"},
+      {"static_fixed_slice_adjacent_l1", "fixed-slice adj L1", "Static proxy",
+       "/static_proxy/variants/fixed_slice/adjacent_l1", 3, "/static_proxy/fixed_slice/adjacent_l1"},
       {"static_fixed_slice_adjacent_l1_p95", "fixed-slice adj L1 P95", "Static proxy",
-       "/static_proxy/fixed_slice/adjacent_l1_p95", 3},
-      {"static_fixed_slice_loop_l1", "fixed-slice loop L1", "Static proxy", "/static_proxy/fixed_slice/loop_l1", 3},
-      {"static_median_adjacent_l1", "median adj L1", "Static proxy", "/static_proxy/median/adjacent_l1", 3},
-      {"static_median_adjacent_l1_p95", "median adj L1 P95", "Static proxy", "/static_proxy/median/adjacent_l1_p95",
-       3},
-      {"static_median_loop_l1", "median loop L1", "Static proxy", "/static_proxy/median/loop_l1", 3},
+       "/static_proxy/variants/fixed_slice/adjacent_l1_p95", 3, "/static_proxy/fixed_slice/adjacent_l1_p95"},
+      {"static_fixed_slice_loop_l1", "fixed-slice loop L1", "Static proxy",
+       "/static_proxy/variants/fixed_slice/loop_l1", 3, "/static_proxy/fixed_slice/loop_l1"},
+      {"static_median_adjacent_l1", "median adj L1", "Static proxy",
+       "/static_proxy/variants/median/adjacent_l1", 3, "/static_proxy/median/adjacent_l1"},
+      {"static_median_adjacent_l1_p95", "median adj L1 P95", "Static proxy",
+       "/static_proxy/variants/median/adjacent_l1_p95", 3, "/static_proxy/median/adjacent_l1_p95"},
+      {"static_median_loop_l1", "median loop L1", "Static proxy",
+       "/static_proxy/variants/median/loop_l1", 3, "/static_proxy/median/loop_l1"},
   };
   return c;
 }
@@ -176,7 +184,9 @@ inline nlohmann::json cell(const nlohmann::json& report, const Column& c) {
     return nullptr;
   }
   if (!quality_measured(report, c.pointer)) return nullptr;
-  return lookup(report, c.pointer);
+  nlohmann::json v = lookup(report, c.pointer);
+  if (v.is_null() && *c.alt) v = lookup(report, c.alt);
+  return v;
 }
 
 inline std::string format_number(double d, int digits) {
