@@ -125,3 +125,31 @@ TEST_CASE("keep_channels, mean_quality and percentile", "[metrics][image]") {
   CHECK(percentile({10, 0}, 100) == Approx(10));
   CHECK_THROWS_AS(percentile({}, 50), Error);
 }
+
+TEMPLATE_TEST_CASE("sequence stability of frames with known differences", "[metrics][image]", float, double) {
+  using S = TestType;
+  // Frame k is a constant grey level g_k: every pair's L1 is |g_a - g_b| * 255.
+  const std::vector<double> grey = {0.1, 0.3, 0.35, 0.95, 0.5};
+  SequenceStabilityMeter<S> m;
+  for (double g : grey) m.add(Image<S>(7, 5, 3, S(g)));
+  const SequenceStability r = m.result();
+  std::vector<double> pairs;
+  for (std::size_t k = 1; k < grey.size(); ++k) pairs.push_back(std::abs(grey[k] - grey[k - 1]) * 255);
+  double mean = 0;
+  for (double v : pairs) mean += v / double(pairs.size());
+  const double tol = sizeof(S) == 4 ? 1e-4 : 1e-9;
+  CHECK(r.frames == 5);
+  CHECK(r.adjacent_l1 == Approx(mean).margin(tol));
+  // 95th percentile of {51, 12.75, 153, 114.75}: sorted, position 0.95 * 3 = 2.85.
+  CHECK(r.adjacent_l1_p95 == Approx(114.75 + 0.85 * (153 - 114.75)).margin(tol));
+  CHECK(r.loop_l1 == Approx(0.4 * 255).margin(tol));
+  // Values outside [0, 1] are clamped before differencing (like saved frames).
+  SequenceStabilityMeter<S> c;
+  c.add(Image<S>(2, 2, 3, S(-1)));
+  c.add(Image<S>(2, 2, 3, S(2)));
+  CHECK(c.result().adjacent_l1 == Approx(255).margin(tol));
+  SequenceStabilityMeter<S> one;
+  one.add(Image<S>(2, 2, 3, S(0)));
+  CHECK_THROWS_AS(one.result(), Error);
+  CHECK_THROWS_AS(one.add(Image<S>(3, 2, 3, S(0))), Error);
+}

@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -151,6 +152,26 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
   REQUIRE(r.at("completion").contains("anchor_index_error"));
   CHECK(r["completion"]["anchor_index_error"]["max"].get<double>() == 0);
 
+  // Static-proxy diagnostics of G0: three variants along views 0 .. 71 (72 repeats 0).
+  const auto sp = parse_file(dir / "static_proxy.json");
+  REQUIRE(r.contains("static_proxy"));
+  CHECK(r["static_proxy"] == sp);
+  CHECK(r.at("stages").contains("static_proxy"));
+  if (!kQuick || !sp.contains("note")) {
+    CHECK(sp.at("views_scored").get<int>() == views - 1);
+    for (const char* v : {"frame_varying", "fixed_slice", "median"})
+      for (const char* f : {"adjacent_l1", "adjacent_l1_p95", "loop_l1"}) {
+        INFO(v << " " << f);
+        const double x = sp.at("variants").at(v).at(f).get<double>();
+        CHECK(std::isfinite(x));
+        CHECK(x > 0);    // consecutive views differ
+        CHECK(x < 100);  // and not by noise-level amounts at 5-degree steps
+      }
+    // P95 over pairs is at least the mean of a non-negative sample's upper tail.
+    CHECK(sp["variants"]["median"]["adjacent_l1_p95"].get<double>() >=
+          sp["variants"]["median"]["adjacent_l1"].get<double>() * 0.999);
+  }
+
   // Coverage: the 33 source frames cover 33/90 of 352 degrees (~125); R1 adds the
   // recorded gap frames (up to 348 degrees) and closes the orbit.
   const double a0 = r["coverage"]["R0"]["A"].get<double>();
@@ -183,7 +204,7 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   PipelineRun<float> state;
   const auto r = run_pipeline(tiny_input_data(), tiny_params(), dir.string(), nullptr, &state);
   CHECK(state.ran.empty());
-  CHECK(state.skipped.size() == 5);
+  CHECK(state.skipped.size() == 6);
   CHECK(read_file_bytes((dir / "report.json").string()) == before);
   CHECK(fs::last_write_time(dir / "final.ply") == t_before);
   CHECK(r.at("coverage") == nlohmann::json::parse(before).at("coverage"));
@@ -196,7 +217,7 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   PipelineRun<float> s2;
   run_pipeline(tiny_input_data(), p, copy.string(), nullptr, &s2);
   CHECK(s2.ran == std::vector<std::string>{"g1", "report"});
-  CHECK(s2.skipped == std::vector<std::string>{"orbit", "g0", "completion"});
+  CHECK(s2.skipped == std::vector<std::string>{"orbit", "g0", "static_proxy", "completion"});
 }
 
 TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
@@ -206,7 +227,7 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
   p.completion = "none";
   PipelineRun<float> state;
   const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
-  CHECK(state.skipped == std::vector<std::string>{"orbit", "g0"});
+  CHECK(state.skipped == std::vector<std::string>{"orbit", "g0", "static_proxy"});
   CHECK(r["coverage"]["R1"]["A"] == r["coverage"]["R0"]["A"]);
   CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((dir / "gmed0.ply").string()));
   CHECK(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>() ==

@@ -176,4 +176,45 @@ inline double percentile(std::vector<double> values, double p) {
   return values[lo] + f * (values[hi] - values[lo]);
 }
 
+// Frame-to-frame stability of a rendered sequence, the paper's static-proxy
+// diagnostics: feed the frames in order (clamped to [0, 1] here); adjacent_l1 is
+// the mean over consecutive pairs of mae_255, adjacent_l1_p95 its 95th percentile
+// over pairs, loop_l1 = mae_255(last, first), the pair that crosses the orbit's
+// start. Streams: only the first and the previous frame are kept.
+struct SequenceStability {
+  double adjacent_l1 = 0, adjacent_l1_p95 = 0, loop_l1 = 0;
+  int frames = 0;
+};
+
+template <class Scalar>
+class SequenceStabilityMeter {
+ public:
+  void add(const Image<Scalar>& frame) {
+    Image<Scalar> f = clamp01(frame);
+    if (frames_ == 0) {
+      first_ = f;
+    } else {
+      metrics_detail::check_pair("SequenceStabilityMeter", prev_, f, "frame " + std::to_string(frames_));
+      pairs_.push_back(mae_255(prev_, f));
+    }
+    prev_ = std::move(f);
+    ++frames_;
+  }
+  SequenceStability result() const {
+    ensure(frames_ >= 2, "SequenceStabilityMeter: need at least 2 frames, got ", frames_);
+    SequenceStability r;
+    r.frames = frames_;
+    for (double v : pairs_) r.adjacent_l1 += v;
+    r.adjacent_l1 /= double(pairs_.size());
+    r.adjacent_l1_p95 = percentile(pairs_, 95);
+    r.loop_l1 = mae_255(prev_, first_);
+    return r;
+  }
+
+ private:
+  Image<Scalar> first_, prev_;
+  std::vector<double> pairs_;
+  int frames_ = 0;
+};
+
 }  // namespace orbitforge

@@ -4,6 +4,8 @@
 //   orbit       fit the canonical orbit, bins, layout          -> orbit.json
 //   g0          deformable reconstruction of the source frames,
 //               MedianGS bake, R0 on the canonical orbit       -> g0/checkpoint.bin, gmed0.ply, R0/NNNN.png
+//   static_proxy  (diagnostic) G0 rendered frame-varying, fixed
+//               slice and MedianGS along the orbit, stability  -> static_proxy.json
 //   completion  provider (completion.hpp) + assembly of V_hat  -> vhat.json, vhat/NNNN.png (+ the provider's folder)
 //   g1          reconstruction of V_hat with its cameras (from
 //               Gmed0 by default), bake, R1                    -> g1/checkpoint.bin, final.ply, R1/NNNN.png
@@ -70,6 +72,7 @@ struct PipelineParams {
   int median_samples = 128;         // MedianGS T_m
   bool g1_from_gmed0 = true;        // initialise G1 from Gmed0 (else like G0: points / random)
   int render_stride = 1;            // R0 / R1 at every K-th canonical view
+  bool static_proxy_diagnostics = true;  // G0 rendered frame-varying / fixed slice / MedianGS on the orbit
   std::size_t init_points = 20000;  // random initial cloud when the input has no points
   int checkpoint_every = 500;       // partial training checkpoints (0 = none)
   // The published densification schedule scaled to a short budget densifies every
@@ -356,11 +359,28 @@ void stage_orbit(PipelineRun<Scalar>& run) {
 
 // ------------------------------------------------------------------ stage 2: G0
 
+// The source frames in source order, time code (t - 1) / (n - 1) for the t-th.
+template <class Scalar>
+std::vector<TrainFrame<Scalar>> g0_frames(const PipelineRun<Scalar>& run) {
+  const auto& in = *run.input;
+  std::vector<TrainFrame<Scalar>> frames;
+  const int n = int(run.fit.source.size());
+  for (int t = 0; t < n; ++t) {
+    const int idx = run.input_index_of_source(t);
+    TrainFrame<Scalar> f;
+    f.image = in.images[std::size_t(idx)];
+    f.camera = in.cameras[std::size_t(idx)].camera;
+    f.time = n > 1 ? Scalar(t) / Scalar(n - 1) : Scalar(0);
+    f.name = in.cameras[std::size_t(idx)].name;
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
 template <class Scalar>
 void stage_g0(PipelineRun<Scalar>& run) {
   using namespace pipeline_detail;
   const auto t0 = std::chrono::steady_clock::now();
-  const auto& in = *run.input;
   const auto& p = run.params;
   const nlohmann::json settings = {{"train", train_settings<Scalar>(p.train, p.iters_g0, p)},
                                    {"render_stride", p.render_stride},
@@ -373,17 +393,7 @@ void stage_g0(PipelineRun<Scalar>& run) {
     run.skipped.push_back("g0");
     return;
   }
-  std::vector<TrainFrame<Scalar>> frames;
-  const int n = int(run.fit.source.size());
-  for (int t = 0; t < n; ++t) {
-    const int idx = run.input_index_of_source(t);
-    TrainFrame<Scalar> f;
-    f.image = in.images[std::size_t(idx)];
-    f.camera = in.cameras[std::size_t(idx)].camera;
-    f.time = n > 1 ? Scalar(t) / Scalar(n - 1) : Scalar(0);
-    f.name = in.cameras[std::size_t(idx)].name;
-    frames.push_back(std::move(f));
-  }
+  const std::vector<TrainFrame<Scalar>> frames = g0_frames(run);
   const GaussianScene<Scalar> gmed0 =
       reconstruct_and_bake(frames, initial_scene(run, frames), run.train_params(p.iters_g0), p,
                            (fs::path(run.out) / "g0").string(), key, "G0");
@@ -392,6 +402,73 @@ void stage_g0(PipelineRun<Scalar>& run) {
   record_stage(run.out, "g0", key, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                settings);
   run.ran.push_back("g0");
+}
+
+// ------------------------------------------------------------------ G0's static-proxy diagnostics
+
+// The paper's static-proxy comparison (its Table "Static-proxy diagnostics"):
+// G0's deformable checkpoint rendered along the canonical orbit as
+//   frame_varying  the deformation at t = v / (views - 1) for view v,
+//   fixed_slice    the deformation at t = 0.5,
+//   median         MedianGS (gmed0.ply),
+// each scored by SequenceStability over the rendered views 0 .. views - 2 (the
+// last view repeats view 0): adjacent-frame L1 (0-255), its P95, and the loop L1
+// across the orbit's start. Frames are rendered in memory (not quantised to 8
+// bits) and not kept. Writes static_proxy.json; a diagnostic only, no later stage
+// reads it except the report.
+template <class Scalar>
+void stage_static_proxy(PipelineRun<Scalar>& run) {
+  using namespace pipeline_detail;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto& p = run.params;
+  const fs::path out(run.out);
+  const nlohmann::json settings = {{"render_stride", p.render_stride}, {"fixed_slice_t", 0.5}, {"version", 1}};
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("g0"))));
+  run.keys["static_proxy"] = key;
+  if (!p.deformable || !p.static_proxy_diagnostics) return;
+  if (stage_current(run.out, "static_proxy", key, {"static_proxy.json"})) {
+    run.skipped.push_back("static_proxy");
+    return;
+  }
+  const GaussianScene<Scalar> gmed0 = read_ply<Scalar>((out / "gmed0.ply").string());
+  const std::vector<TrainFrame<Scalar>> frames = g0_frames(run);
+  Trainer<Scalar> trainer(frames, gmed0, run.train_params(p.iters_g0));
+  trainer.load_checkpoint((out / "g0" / "checkpoint.bin").string());
+  nlohmann::json j = {{"views_scored", 0}, {"variants", nlohmann::json::object()}};
+  if (!trainer.field() || !trainer.deforming_at(trainer.iteration())) {
+    j["note"] = "G0 never deformed (training ended within the warm-up): the three variants coincide";
+  } else {
+    std::vector<int> views = rendered_views(run.fit.views, p.render_stride);
+    if (views.size() > 2 && views.back() == run.fit.views - 1) views.pop_back();
+    FieldDeformation<Scalar> d(*trainer.field(), p.threads);
+    MedianBakeParams mp;
+    mp.threads = p.threads;
+    const GaussianScene<Scalar> fixed = bake_fixed_slice(trainer.scene(), d, mp);
+    Renderer<Scalar> r = run.renderer();
+    SequenceStabilityMeter<Scalar> m_vary, m_fixed, m_median;
+    ProgressBar bar("static", int(views.size()), p.progress);
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      const int v = views[i];
+      const auto& cam = run.fit.cameras[std::size_t(v)];
+      const Scalar t = Scalar(double(v) / double(run.fit.views - 1));
+      m_vary.add(r.render(SceneView<Scalar>(bake_time_slice(trainer.scene(), d, t, mp)), cam).color);
+      m_fixed.add(r.render(SceneView<Scalar>(fixed), cam).color);
+      m_median.add(r.render(SceneView<Scalar>(gmed0), cam).color);
+      bar.update(int(i + 1));
+    }
+    auto row = [](const SequenceStability& s) {
+      return nlohmann::json{{"adjacent_l1", s.adjacent_l1}, {"adjacent_l1_p95", s.adjacent_l1_p95},
+                            {"loop_l1", s.loop_l1}};
+    };
+    j["views_scored"] = views.size();
+    j["variants"] = {{"frame_varying", row(m_vary.result())},
+                     {"fixed_slice", row(m_fixed.result())},
+                     {"median", row(m_median.result())}};
+  }
+  write_file_atomic((out / "static_proxy.json").string(), j.dump(1) + "\n");
+  record_stage(run.out, "static_proxy", key,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), settings);
+  run.ran.push_back("static_proxy");
 }
 
 // ------------------------------------------------------------------ stage 3: completion + V_hat
@@ -603,7 +680,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   const auto t0 = std::chrono::steady_clock::now();
   const auto& p = run.params;
   const fs::path out(run.out);
-  const std::string key = hex64(fnv1a(run.keys.at("g1")));
+  const std::string key = hex64(fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1"))));
   run.keys["report"] = key;
   const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
                                             "top_view.png"};
@@ -665,7 +742,8 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   // Stage times from the records (a resumed run reports the times of the runs that did the work).
   nlohmann::json stages = nlohmann::json::object();
   double total = 0;
-  for (const char* s : {"orbit", "g0", "completion", "g1"}) {
+  for (const char* s : {"orbit", "g0", "static_proxy", "completion", "g1"}) {
+    if (std::string(s) == "static_proxy" && !fs::exists(out / "static_proxy.json")) continue;
     const double secs = recorded_seconds(run.out, s);
     stages[s] = secs;
     total += secs;
@@ -695,6 +773,8 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"diagnostics", orbit.at("diagnostics")},
                       {"quality", quality},
                       {"completion", completion}};
+  if (fs::exists(out / "static_proxy.json"))
+    r["static_proxy"] = nlohmann::json::parse(read_file_bytes((out / "static_proxy.json").string()));
   write_file_atomic((out / "report.json").string(), r.dump(1) + "\n");
   write_file_atomic((out / "report.md").string(), report_markdown(r));
   record_stage(run.out, "report", key, report_secs, nlohmann::json::object());
@@ -735,6 +815,7 @@ nlohmann::json run_pipeline(const PipelineInput<Scalar>& input, const PipelinePa
   nlohmann::json report;
   timed("orbit", [&] { stage_orbit(run); });
   timed("g0", [&] { stage_g0(run); });
+  timed("static_proxy", [&] { stage_static_proxy(run); });
   timed("completion", [&] { stage_completion(run, *provider); });
   timed("g1", [&] { stage_g1(run); });
   timed("report", [&] { report = stage_report(run); });

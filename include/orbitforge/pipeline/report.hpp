@@ -77,6 +77,16 @@ inline std::string report_markdown(const nlohmann::json& r) {
   md << "- temporal trace: absolute turns " << num(at(tr, "absolute_turns"), 3) << ", net turns "
      << num(at(tr, "net_turns"), 3) << ", stall fraction " << num(at(tr, "stall_fraction"), 3) << ", reversals "
      << num(at(tr, "reversals")) << "\n\n";
+  const auto& sp = at(r, "static_proxy", "variants");
+  if (sp.is_object() && !sp.empty()) {
+    md << "## Static proxy (G0 along the canonical orbit, " << num(at(r, "static_proxy", "views_scored"))
+       << " views)\n\nAdjacent-frame L1 and its P95 over pairs, loop L1 across the orbit's start (0-255 scale; "
+          "lower is steadier).\n\n| variant | adjacent L1 | L1 P95 | loop L1 |\n|---|---|---|---|\n";
+    for (const char* v : {"frame_varying", "fixed_slice", "median"})
+      md << "| " << v << " | " << num(at(sp, v, "adjacent_l1")) << " | " << num(at(sp, v, "adjacent_l1_p95"))
+         << " | " << num(at(sp, v, "loop_l1")) << " |\n";
+    md << "\n";
+  }
   md << "## Orbit fitting diagnostics\n\n| | |\n|---|---|\n";
   if (r.contains("diagnostics") && r["diagnostics"].is_object())
     for (auto it = r["diagnostics"].begin(); it != r["diagnostics"].end(); ++it)
