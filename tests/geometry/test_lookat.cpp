@@ -8,7 +8,7 @@
 using namespace orbitforge;
 
 template <class S>
-static S tol() { return std::is_same<S, float>::value ? S(2e-4) : S(1e-10); }
+static S lookat_tol() { return std::is_same<S, float>::value ? S(2e-4) : S(1e-10); }
 
 TEMPLATE_TEST_CASE("fit_lookat_point recovers the common point of exact rays", "[geometry][lookat]", float, double) {
   using S = TestType;
@@ -23,7 +23,7 @@ TEMPLATE_TEST_CASE("fit_lookat_point recovers the common point of exact rays", "
     d.push_back((x - oi) * S(1.7));  // not unit: the fit normalises
   }
   const auto fit = fit_lookat_point(o, d);
-  REQUIRE((fit.point - x).norm() < tol<S>() * 10);
+  REQUIRE((fit.point - x).norm() < lookat_tol<S>() * 10);
   REQUIRE(fit.mean_angle_deg < (std::is_same<S, float>::value ? 0.05 : 1e-6));
   REQUIRE(fit.eigen_ratio > 0.001);
 
@@ -31,7 +31,7 @@ TEMPLATE_TEST_CASE("fit_lookat_point recovers the common point of exact rays", "
     std::vector<Vec3> back;
     for (auto& v : d) back.push_back(-v);
     const auto f2 = fit_lookat_point(o, back);
-    REQUIRE((f2.point - x).norm() < tol<S>() * 10);  // lines, not rays
+    REQUIRE((f2.point - x).norm() < lookat_tol<S>() * 10);  // lines, not rays
     REQUIRE(f2.mean_angle_deg > 179);
   }
 }
@@ -42,7 +42,7 @@ TEMPLATE_TEST_CASE("fit_lookat_point: least squares with noise and two rays", "[
   // Two skew lines: x-axis at z = 0 and y-axis at z = 2 -> midpoint (0, 0, 1).
   std::vector<Vec3> o{Vec3(-5, 0, 0), Vec3(0, -5, 2)}, d{Vec3(1, 0, 0), Vec3(0, 1, 0)};
   const auto fit = fit_lookat_point(o, d);
-  REQUIRE((fit.point - Vec3(0, 0, 1)).norm() < tol<S>() * 10);
+  REQUIRE((fit.point - Vec3(0, 0, 1)).norm() < lookat_tol<S>() * 10);
   // The angle to the midpoint from each origin: atan(1/5).
   REQUIRE(fit.mean_angle_deg == Approx(std::atan(0.2) * 180 / M_PI).epsilon(1e-4));
 }

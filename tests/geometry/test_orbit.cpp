@@ -10,7 +10,7 @@ using namespace orbitforge;
 using orbitforge_test::SyntheticOrbit;
 
 template <class S>
-static double tol() { return std::is_same<S, float>::value ? 2e-3 : 1e-8; }
+static double orbit_tol() { return std::is_same<S, float>::value ? 2e-3 : 1e-8; }
 
 template <class S>
 static void require_finite(const OrbitFit<S>& f) {
@@ -42,16 +42,16 @@ TEMPLATE_TEST_CASE("fit_orbit recovers a known orbit exactly (random planes, bot
     REQUIRE(fit.diagnostics.convention == "row2");
     REQUIRE(fit.diagnostics.normal_rule == "camera_up");
     REQUIRE(fit.diagnostics.center_rule == "look_at");
-    REQUIRE(fit.diagnostics.center_offset < tol<S>() * 10);  // look-at and circle centres agree
-    REQUIRE((fit.orbit.normal - o.n()).norm() < tol<S>());
-    REQUIRE((fit.orbit.center - o.center).norm() < tol<S>() * r * 10);
-    REQUIRE(fit.orbit.radius == Approx(r).epsilon(tol<S>()));
-    REQUIRE((fit.orbit.look_at - o.look_at()).norm() < tol<S>() * r * 10);
+    REQUIRE(fit.diagnostics.center_offset < orbit_tol<S>() * 10);  // look-at and circle centres agree
+    REQUIRE((fit.orbit.normal - o.n()).norm() < orbit_tol<S>());
+    REQUIRE((fit.orbit.center - o.center).norm() < orbit_tol<S>() * r * 10);
+    REQUIRE(fit.orbit.radius == Approx(r).epsilon(orbit_tol<S>()));
+    REQUIRE((fit.orbit.look_at - o.look_at()).norm() < orbit_tol<S>() * r * 10);
     REQUIRE(fit.orbit.direction == (o.step_deg > 0 ? 1 : -1));
     REQUIRE(fit.diagnostics.cameras_used == o.count);
     REQUIRE(fit.diagnostics.cameras_skipped.empty());
-    REQUIRE(fit.diagnostics.circle_rmse < tol<S>() * r * 10);
-    REQUIRE(fit.diagnostics.height_std < tol<S>() * r * 10);
+    REQUIRE(fit.diagnostics.circle_rmse < orbit_tol<S>() * r * 10);
+    REQUIRE(fit.diagnostics.height_std < orbit_tol<S>() * r * 10);
     REQUIRE(fit.diagnostics.lookat_error_deg < (std::is_same<S, float>::value ? 0.05 : 1e-5));
     const double span = std::abs(o.step_deg) * (o.count - 1);
     REQUIRE(fit.diagnostics.source_span_deg == Approx(span).margin(1e-2));
@@ -60,7 +60,7 @@ TEMPLATE_TEST_CASE("fit_orbit recovers a known orbit exactly (random planes, bot
     REQUIRE(fit.cameras.size() == 361);
     for (int i : {0, 1, 90, 200, 360}) {
       const auto expect = o.position(o.start_deg + (o.step_deg > 0 ? 1 : -1) * i);
-      REQUIRE((fit.cameras[i].center() - expect).norm() < tol<S>() * r * 10);
+      REQUIRE((fit.cameras[i].center() - expect).norm() < orbit_tol<S>() * r * 10);
     }
     // Source camera t lands in bin |step| t; the arc ends at the last one.
     const int step = int(std::abs(o.step_deg));
@@ -85,10 +85,10 @@ TEMPLATE_TEST_CASE("canonical views at observed bins coincide with the source ca
   const auto fit = fit_orbit(src, p);
   for (std::size_t t = 0; t < src.size(); ++t) {
     const auto& c = fit.cameras[fit.source[t].bin];
-    REQUIRE((c.center() - src[t].camera.center()).norm() < tol<S>() * 10);
-    REQUIRE((c.forward() - src[t].camera.forward()).norm() < tol<S>() * 10);
+    REQUIRE((c.center() - src[t].camera.center()).norm() < orbit_tol<S>() * 10);
+    REQUIRE((c.forward() - src[t].camera.forward()).norm() < orbit_tol<S>() * 10);
     // No roll: the canonical camera's x axis is parallel to the orbit plane.
-    REQUIRE(std::abs(c.right().dot(fit.orbit.normal)) < tol<S>());
+    REQUIRE(std::abs(c.right().dot(fit.orbit.normal)) < orbit_tol<S>());
     REQUIRE(c.up().dot(fit.orbit.normal) > 0);
   }
 }
@@ -140,7 +140,7 @@ TEMPLATE_TEST_CASE("cameras rolled by 90 degrees: the look-down rule orients the
     o.step_deg = 22.5;
     const auto fit = fit_orbit(o.cameras());
     REQUIRE(fit.diagnostics.normal_rule == "look_down");
-    REQUIRE((fit.orbit.normal - o.n()).norm() < tol<S>());
+    REQUIRE((fit.orbit.normal - o.n()).norm() < orbit_tol<S>());
     REQUIRE(fit.orbit.direction == 1);
     REQUIRE(fit.diagnostics.source_span_deg == Approx(337.5).margin(1e-2));
   }
@@ -168,8 +168,8 @@ TEMPLATE_TEST_CASE("unusable frames are left out and listed", "[geometry][orbit]
   REQUIRE(fit.source.front().name == "002.jpg");
   REQUIRE(fit.source.front().input_index == 1);
   REQUIRE(fit.source.front().bin == 0);
-  REQUIRE((fit.orbit.center - clean.orbit.center).norm() < tol<S>() * 10);
-  REQUIRE(fit.orbit.radius == Approx(clean.orbit.radius).epsilon(tol<S>()));
+  REQUIRE((fit.orbit.center - clean.orbit.center).norm() < orbit_tol<S>() * 10);
+  REQUIRE(fit.orbit.radius == Approx(clean.orbit.radius).epsilon(orbit_tol<S>()));
   REQUIRE((fit.cameras[0].center() - src[1].camera.center()).norm() > 0.01);  // offset 10: raised
 }
 
@@ -286,8 +286,8 @@ TEMPLATE_TEST_CASE("fit_orbit: noise, short arcs, transposed rotations", "[geome
     }
     const auto fit = fit_orbit(src);
     REQUIRE(fit.diagnostics.convention == "col2");
-    REQUIRE((fit.orbit.normal - ref.orbit.normal).norm() < tol<S>() * 10);
-    REQUIRE((fit.orbit.look_at - ref.orbit.look_at).norm() < tol<S>() * 10);
+    REQUIRE((fit.orbit.normal - ref.orbit.normal).norm() < orbit_tol<S>() * 10);
+    REQUIRE((fit.orbit.look_at - ref.orbit.look_at).norm() < orbit_tol<S>() * 10);
     OrbitParams p;
     p.convention = ForwardConvention::row2;  // forcing the wrong one is allowed and reported
     const auto forced = fit_orbit(src, p);

@@ -9,10 +9,15 @@
 #include <cstdio>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
+#include <functional>
+#include <sstream>
 #include <initializer_list>
 #include <random>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
@@ -41,6 +46,45 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// A per-process scratch folder <tmp>/orbitforge_test_<pid>/<tag>, the whole
+// tree removed when the test program exits.
+inline std::filesystem::path scratch_dir(const std::string& tag) {
+  struct Root {
+    std::filesystem::path path =
+        std::filesystem::temp_directory_path() / ("orbitforge_test_" + std::to_string(::getpid()));
+    ~Root() {
+      std::error_code ignored;
+      std::filesystem::remove_all(path, ignored);
+    }
+  };
+  static Root root;
+  const auto dir = root.path / tag;
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+inline std::string slurp(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream os;
+  os << in.rdbuf();
+  return os.str();
+}
+
+inline void spit(const std::filesystem::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary);
+  out << bytes;
+}
+
+// The message of the orbitforge::Error that f throws ("" when it throws none).
+inline std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const orbitforge::Error& e) {
+    return e.what();
+  }
+  return "";
+}
 
 // Runs f, requires an orbitforge::Error whose message contains every part.
 template <class F>

@@ -25,7 +25,7 @@ void write_text(const std::string& path, const std::string& text) {
 }
 
 template <class S>
-double tol_for() {
+double colmap_tol() {
   return std::is_same<S, double>::value ? 1e-12 : 1e-5;
 }
 
@@ -146,7 +146,7 @@ TEMPLATE_TEST_CASE("COLMAP text: write then read gives the same cameras", "[io][
   CHECK(model.points.empty());
   const auto back = colmap_frame_cameras<S>(model);
   REQUIRE(back.size() == cams.size());
-  for (std::size_t i = 0; i < cams.size(); ++i) orbitforge_test::require_same_cameras(cams[i], back[i], tol_for<S>());
+  for (std::size_t i = 0; i < cams.size(); ++i) orbitforge_test::require_same_cameras(cams[i], back[i], colmap_tol<S>());
 
   // Frames with valid = false are left out of the model.
   cams[3].valid = false;

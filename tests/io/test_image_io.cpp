@@ -13,38 +13,17 @@
 #include <unistd.h>
 
 #include "orbitforge/io/image_io.hpp"
+#include "io/io_test_util.hpp"
 #include "support/data.hpp"
 
 using namespace orbitforge;
 namespace fs = std::filesystem;
+using orbitforge_test::error_of;
+using orbitforge_test::scratch_dir;
+using orbitforge_test::slurp;
+using orbitforge_test::spit;
 
 namespace {
-
-// A per-process scratch folder, removed when the test program exits.
-fs::path temp_dir() {
-  struct Scratch {
-    fs::path path = fs::temp_directory_path() / ("orbitforge_test_image_io_" + std::to_string(::getpid()));
-    ~Scratch() {
-      std::error_code ignored;
-      fs::remove_all(path, ignored);
-    }
-  };
-  static Scratch scratch;
-  fs::create_directories(scratch.path);
-  return scratch.path;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
-
-void spit(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary);
-  out << bytes;
-}
 
 float le_float(const std::string& bytes, std::size_t offset) {
   const auto* q = reinterpret_cast<const unsigned char*>(bytes.data() + offset);
@@ -55,15 +34,6 @@ float le_float(const std::string& bytes, std::size_t offset) {
   return v;
 }
 
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-
 }  // namespace
 
 TEMPLATE_TEST_CASE("PNG round trip of 8-bit values", "[io][image]", float, double) {
@@ -71,7 +41,7 @@ TEMPLATE_TEST_CASE("PNG round trip of 8-bit values", "[io][image]", float, doubl
   std::mt19937 rng(1);
   Image<T> img(13, 7, 3);
   for (auto& v : img.data) v = T(rng() % 256) / T(255);
-  const auto path = (temp_dir() / "rt.png").string();
+  const auto path = (scratch_dir("image_io") / "rt.png").string();
   write_png(path, img);
   const auto back = read_image<T>(path);
   REQUIRE(back.same_shape(img));
@@ -81,8 +51,8 @@ TEMPLATE_TEST_CASE("PNG round trip of 8-bit values", "[io][image]", float, doubl
   Image<T> odd(3, 1, 3);
   odd.data = {T(-0.5), T(2), std::numeric_limits<T>::quiet_NaN(), T(0.5), T(1.0 / 255 * 0.49), T(1.0 / 255 * 0.51),
               T(1), T(0), T(0.999)};
-  write_image((temp_dir() / "odd.png").string(), odd);
-  const auto o = read_image<T>((temp_dir() / "odd.png").string());
+  write_image((scratch_dir("image_io") / "odd.png").string(), odd);
+  const auto o = read_image<T>((scratch_dir("image_io") / "odd.png").string());
   const int expected[9] = {0, 255, 0, 128, 0, 1, 255, 0, 255};
   for (int i = 0; i < 9; ++i) REQUIRE(o.data[std::size_t(i)] == T(expected[i]) / T(255));
 }
@@ -91,10 +61,10 @@ TEST_CASE("image readers convert grey and RGBA to RGB", "[io][image]") {
   Image<float> grey(4, 3, 1), rgba(4, 3, 4);
   for (std::size_t i = 0; i < grey.data.size(); ++i) grey.data[i] = float(i * 20) / 255.0f;
   for (std::size_t i = 0; i < rgba.data.size(); ++i) rgba.data[i] = float(i * 5 % 256) / 255.0f;
-  write_png((temp_dir() / "grey.png").string(), grey);
-  write_png((temp_dir() / "rgba.png").string(), rgba);
-  const auto g = read_image<float>((temp_dir() / "grey.png").string());
-  const auto r = read_image<float>((temp_dir() / "rgba.png").string());
+  write_png((scratch_dir("image_io") / "grey.png").string(), grey);
+  write_png((scratch_dir("image_io") / "rgba.png").string(), rgba);
+  const auto g = read_image<float>((scratch_dir("image_io") / "grey.png").string());
+  const auto r = read_image<float>((scratch_dir("image_io") / "rgba.png").string());
   REQUIRE(g.channels == 3);
   REQUIRE(r.channels == 3);
   for (int y = 0; y < 3; ++y)
@@ -116,7 +86,7 @@ TEMPLATE_TEST_CASE("PFM round trip is bit-exact and stores the bottom row first"
   img.data[1] = T(-0.0f);
   img.data[2] = T(std::numeric_limits<float>::infinity());
   img.data[3] = T(1e30f);
-  const auto path = (temp_dir() / "rt.pfm").string();
+  const auto path = (scratch_dir("image_io") / "rt.pfm").string();
   write_pfm(path, img);
   const auto back = read_pfm<T>(path);
   REQUIRE(back.same_shape(img));
@@ -141,14 +111,14 @@ TEMPLATE_TEST_CASE("PFM round trip is bit-exact and stores the bottom row first"
   // One channel: "Pf".
   Image<T> grey(2, 2, 1);
   grey.data = {T(1), T(2), T(3), T(4)};
-  write_image((temp_dir() / "g.pfm").string(), grey);
-  const std::string graw = slurp(temp_dir() / "g.pfm");
+  write_image((scratch_dir("image_io") / "g.pfm").string(), grey);
+  const std::string graw = slurp(scratch_dir("image_io") / "g.pfm");
   REQUIRE(graw.compare(0, 11, "Pf\n2 2\n-1.0") == 0);
   REQUIRE(le_float(graw, 12) == 3.0f);
   REQUIRE(le_float(graw, 24) == 2.0f);
-  REQUIRE(read_pfm<T>((temp_dir() / "g.pfm").string()).data == grey.data);
+  REQUIRE(read_pfm<T>((scratch_dir("image_io") / "g.pfm").string()).data == grey.data);
   // read_image gives RGB for any input.
-  REQUIRE(read_image<T>((temp_dir() / "g.pfm").string()).channels == 3);
+  REQUIRE(read_image<T>((scratch_dir("image_io") / "g.pfm").string()).channels == 3);
 }
 
 TEST_CASE("PFM reader: big endian, whitespace, errors", "[io][image][pfm]") {
@@ -179,9 +149,9 @@ TEST_CASE("PFM reader: big endian, whitespace, errors", "[io][image][pfm]") {
   has(error_of([&] { decode_pfm<float>("PF\n99999999 99999999\n-1\n", "x.pfm"); }), "width");
   has(error_of([&] { decode_pfm<float>("PF\n9999 9999\n-1\n", "x.pfm"); }), "truncated");
   has(error_of([&] { decode_image<float>("garbage bytes", "x.pfm"); }), "cannot decode");
-  has(error_of([&] { read_image<float>((temp_dir() / "x.pfm" / "missing").string()); }), "does not exist");
-  has(error_of([&] { write_image((temp_dir() / "x.pfm.bmp").string(), Image<float>(2, 2, 3)); }), "unsupported");
-  has(error_of([&] { write_pfm((temp_dir() / "x.pfm").string(), Image<float>(2, 2, 2)); }), "1 or 3 channels");
+  has(error_of([&] { read_image<float>((scratch_dir("image_io") / "x.pfm" / "missing").string()); }), "does not exist");
+  has(error_of([&] { write_image((scratch_dir("image_io") / "x.pfm.bmp").string(), Image<float>(2, 2, 3)); }), "unsupported");
+  has(error_of([&] { write_pfm((scratch_dir("image_io") / "x.pfm").string(), Image<float>(2, 2, 2)); }), "1 or 3 channels");
 }
 
 TEST_CASE("JPEG read of a recorded frame", "[io][image][shared]") {

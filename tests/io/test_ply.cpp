@@ -15,33 +15,15 @@
 
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/splat_format.hpp"
+#include "io/io_test_util.hpp"
 #include "support/data.hpp"
 
 using namespace orbitforge;
 namespace fs = std::filesystem;
+using orbitforge_test::scratch_dir;
+using orbitforge_test::slurp;
 
 namespace {
-
-// A per-process scratch folder, removed when the test program exits.
-fs::path temp_dir() {
-  struct Scratch {
-    fs::path path = fs::temp_directory_path() / ("orbitforge_test_ply_" + std::to_string(::getpid()));
-    ~Scratch() {
-      std::error_code ignored;
-      fs::remove_all(path, ignored);
-    }
-  };
-  static Scratch scratch;
-  fs::create_directories(scratch.path);
-  return scratch.path;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
 
 template <class S>
 GaussianScene<S> random_scene(std::size_t n, int degree, unsigned seed) {
@@ -156,7 +138,7 @@ void require_same_scene(const GaussianScene<S>& a, const GaussianScene<S>& b) {
   REQUIRE(a.sh == b.sh);
 }
 
-std::string error_of(const std::string& bytes) {
+std::string ply_error_of(const std::string& bytes) {
   try {
     read_ply_from_memory<float>(bytes, "bad.ply");
   } catch (const Error& e) {
@@ -173,17 +155,17 @@ TEMPLATE_TEST_CASE("PLY round trip preserves every value (degrees 0..3)", "[io][
     CAPTURE(degree);
     // Values representable in float, so the double scene must also survive exactly.
     const auto scene = random_scene<float>(57, degree, 100u + unsigned(degree)).template cast<S>();
-    const auto path = (temp_dir() / ("rt_" + std::to_string(degree) + ".ply")).string();
+    const auto path = (scratch_dir("ply") / ("rt_" + std::to_string(degree) + ".ply")).string();
     write_ply(path, scene);
     const auto back = read_ply<S>(path);
     require_same_scene(scene, back);
 
     // PLY -> library -> PLY: byte-identical file.
-    const auto path2 = (temp_dir() / ("rt2_" + std::to_string(degree) + ".ply")).string();
+    const auto path2 = (scratch_dir("ply") / ("rt2_" + std::to_string(degree) + ".ply")).string();
     write_ply(path2, back);
     REQUIRE(slurp(path) == slurp(path2));
   }
-  for (const auto& e : fs::directory_iterator(temp_dir()))
+  for (const auto& e : fs::directory_iterator(scratch_dir("ply")))
     REQUIRE(e.path().filename().string().find(".tmp") == std::string::npos);  // temporaries renamed
 }
 
@@ -353,27 +335,27 @@ TEST_CASE("PLY reader: malformed files give errors naming the problem", "[io][pl
     REQUIRE(msg.find("bad.ply") != std::string::npos);
     REQUIRE(msg.find(part) != std::string::npos);
   };
-  has(error_of(""), "not a PLY");
-  has(error_of("PLY\nformat ascii 1.0\nend_header\n"), "not a PLY");
-  has(error_of(good.substr(0, 60)), "without 'end_header'");
-  has(error_of(replace("binary_little_endian", "binary_middle_endian")), "unsupported format");
-  has(error_of(replace("property float rot_2\n", "")), "'rot_2'");
-  has(error_of(replace("property float opacity\n", "")), "'opacity'");
-  has(error_of(replace("property float x\n", "property float q\n")), "'x'");
-  has(error_of(replace("property float f_dc_1\n", "")), "'f_dc_1'");
-  has(error_of(replace("property float f_rest_8\n", "")), "8 f_rest_* properties");
-  has(error_of(replace("property float f_rest_8\n", "property float f_rest_9\n")), "'f_rest_8'");
-  has(error_of(replace("property float y\n", "property floaty y\n")), "line 6");
-  has(error_of(replace("property float y\n", "property float x\n")), "declared twice");
-  has(error_of(replace("element vertex 10", "element vertex -3")), "bad element count");
-  has(error_of(replace("element vertex 10", "element vertex 11")), "truncated");
-  has(error_of(replace("element vertex 10", "element vertex 18446744073709551615")), "vertex count");
-  has(error_of(replace("element vertex 10", "element vertex 99999999999999999999")), "bad element count");
-  has(error_of(good.substr(0, good.size() - 1)), "truncated");
-  has(error_of(good.substr(0, header_size)), "byte offset");
-  has(error_of(replace("format binary_little_endian 1.0\n", "")), "no format");
-  has(error_of(replace("element vertex", "element vortex")), "no 'vertex' element");
-  has(error_of(replace("comment", "commentary")), "unknown keyword");
+  has(ply_error_of(""), "not a PLY");
+  has(ply_error_of("PLY\nformat ascii 1.0\nend_header\n"), "not a PLY");
+  has(ply_error_of(good.substr(0, 60)), "without 'end_header'");
+  has(ply_error_of(replace("binary_little_endian", "binary_middle_endian")), "unsupported format");
+  has(ply_error_of(replace("property float rot_2\n", "")), "'rot_2'");
+  has(ply_error_of(replace("property float opacity\n", "")), "'opacity'");
+  has(ply_error_of(replace("property float x\n", "property float q\n")), "'x'");
+  has(ply_error_of(replace("property float f_dc_1\n", "")), "'f_dc_1'");
+  has(ply_error_of(replace("property float f_rest_8\n", "")), "8 f_rest_* properties");
+  has(ply_error_of(replace("property float f_rest_8\n", "property float f_rest_9\n")), "'f_rest_8'");
+  has(ply_error_of(replace("property float y\n", "property floaty y\n")), "line 6");
+  has(ply_error_of(replace("property float y\n", "property float x\n")), "declared twice");
+  has(ply_error_of(replace("element vertex 10", "element vertex -3")), "bad element count");
+  has(ply_error_of(replace("element vertex 10", "element vertex 11")), "truncated");
+  has(ply_error_of(replace("element vertex 10", "element vertex 18446744073709551615")), "vertex count");
+  has(ply_error_of(replace("element vertex 10", "element vertex 99999999999999999999")), "bad element count");
+  has(ply_error_of(good.substr(0, good.size() - 1)), "truncated");
+  has(ply_error_of(good.substr(0, header_size)), "byte offset");
+  has(ply_error_of(replace("format binary_little_endian 1.0\n", "")), "no format");
+  has(ply_error_of(replace("element vertex", "element vortex")), "no 'vertex' element");
+  has(ply_error_of(replace("comment", "commentary")), "unknown keyword");
 
   // ascii: a bad number names the vertex.
   const std::string ascii =
@@ -382,19 +364,19 @@ TEST_CASE("PLY reader: malformed files give errors naming the problem", "[io][pl
       "property float scale_0\nproperty float scale_1\nproperty float scale_2\nproperty float rot_0\n"
       "property float rot_1\nproperty float rot_2\nproperty float rot_3\nend_header\n"
       "0 0 0 0 0 0 0 0 0 0 1 0 0 0\n0 0 0 0 0 0 0 0 0 0 1 0 0 x\n";
-  has(error_of(ascii), "vertex 1");
-  has(error_of(ascii.substr(0, ascii.size() - 6)), "vertex count");
+  has(ply_error_of(ascii), "vertex 1");
+  has(ply_error_of(ascii.substr(0, ascii.size() - 6)), "vertex count");
   {
     std::string s = ascii;
     s.replace(s.find("element vertex 2"), 16, "element vertex 3");
-    has(error_of(s), "vertex count");
+    has(ply_error_of(s), "vertex count");
   }
 
   // A count the file cannot hold is rejected before any allocation.
   std::string giant = replace("element vertex 10", "element vertex 4000000000000");
-  has(error_of(giant), "vertex count 4000000000000");
+  has(ply_error_of(giant), "vertex count 4000000000000");
 
-  REQUIRE_THROWS_AS(read_ply<float>((temp_dir() / "does_not_exist.ply").string()), Error);
+  REQUIRE_THROWS_AS(read_ply<float>((scratch_dir("ply") / "does_not_exist.ply").string()), Error);
 }
 
 TEST_CASE("PLY reader loads a file written by OpenSplat", "[io][ply][shared]") {
@@ -491,7 +473,7 @@ TEMPLATE_TEST_CASE(".splat round trip within quantisation", "[io][splat]", float
   for (auto& v : s.opacity_logits) v = S(4 * u(rng));
   for (auto& v : s.rotations) v = S(u(rng));
   for (auto& v : s.sh) v = S(1.5 * u(rng));  // |0.5 + C0 dc| stays inside [0, 1]
-  const auto path = (temp_dir() / "rt.splat").string();
+  const auto path = (scratch_dir("ply") / "rt.splat").string();
   write_splat(path, s);
   REQUIRE(fs::file_size(path) == 32 * n);
   const auto r = read_splat<S>(path);

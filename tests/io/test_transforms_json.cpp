@@ -14,7 +14,7 @@ using orbitforge_test::TempDir;
 namespace {
 
 template <class S>
-double tol_for() {
+double json_tol() {
   return std::is_same<S, double>::value ? 1e-12 : 2e-6;
 }
 
@@ -36,7 +36,7 @@ TEMPLATE_TEST_CASE("transforms.json: write then read gives the same cameras", "[
   write_transforms_json(path, cams);
   const auto back = read_transforms_json<S>(path);
   REQUIRE(back.size() == cams.size());
-  for (std::size_t i = 0; i < cams.size(); ++i) orbitforge_test::require_same_cameras(cams[i], back[i], tol_for<S>());
+  for (std::size_t i = 0; i < cams.size(); ++i) orbitforge_test::require_same_cameras(cams[i], back[i], json_tol<S>());
 
   cams[2].valid = false;
   write_transforms_json(path, cams);

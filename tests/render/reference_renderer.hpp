@@ -28,6 +28,9 @@ struct ReferenceImages {
 };
 
 // Same constants as RasterRules, spelled out.
+// Tolerance of the SIMD renderer against the reference in the same precision.
+template <class S> constexpr double same_precision_tol() { return sizeof(S) == 4 ? 1e-5 : 1e-10; }
+
 template <class S> constexpr S ref_max_alpha() { return S(0.99); }
 template <class S> constexpr S ref_min_alpha() { return S(1) / S(255); }
 template <class S> constexpr S ref_min_T() { return S(1e-4); }

@@ -10,9 +10,6 @@ using namespace orbitforge_test;
 
 namespace {
 
-template <class S>
-double tol() { return sizeof(S) == 4 ? 1e-5 : 1e-10; }
-
 template <class S, class B = simd::native_batch<S>>
 RasterOutput<S> render_splats(const ProjectedSplats<S>& s, int w, int h, int tile = 16, int threads = 1,
                               std::array<S, 3> bg = {{0, 0, 0}}, bool fast_exp = false) {
@@ -54,7 +51,7 @@ TEMPLATE_TEST_CASE("rasterize matches the reference in the same precision", "[re
                        Case{3, 200, 100, 5}, Case{33, 31, 2000, 6}}) {
     INFO("case " << c.w << "x" << c.h << " n=" << c.n);
     auto s = random_splats<S>(std::size_t(c.n), c.w, c.h, c.seed);
-    check_against_reference(s, c.w, c.h, bg, tol<S>());
+    check_against_reference(s, c.w, c.h, bg, same_precision_tol<S>());
   }
 }
 
@@ -107,7 +104,7 @@ TEMPLATE_TEST_CASE("scalar kernel matches the SIMD kernel", "[render]", float, d
   const std::array<S, 3> bg{{S(0.1), S(0), S(1)}};
   const auto v = render_splats<S>(s, 45, 37, 16, 2, bg);
   const auto c = render_splats<S, simd::scalar_batch<S>>(s, 45, 37, 16, 2, bg);
-  CHECK(max_abs_diff(v.color, c.color) <= tol<S>());
+  CHECK(max_abs_diff(v.color, c.color) <= same_precision_tol<S>());
   CHECK(max_abs_diff(v.count, c.count) == 0);
 }
 
@@ -140,7 +137,7 @@ TEMPLATE_TEST_CASE("hard cases", "[render]", float, double) {
         CHECK(out.transmittance(x, y) == Approx(0.01).epsilon(1e-5));
         CHECK(out.color(x, y, 0) == Approx(0.99 + 0.01 * 0.25).epsilon(1e-5));
       }
-    check_against_reference(s, 40, 20, bg, tol<S>());
+    check_against_reference(s, 40, 20, bg, same_precision_tol<S>());
   }
   SECTION("opacity 0 and Gaussians far below one pixel") {
     auto s = random_splats<S>(200, 30, 30, 41);
@@ -148,19 +145,19 @@ TEMPLATE_TEST_CASE("hard cases", "[render]", float, double) {
       if (i % 2 == 0) s.opacity[i] = 0;
       else { s.conic_a[i] = S(1e6); s.conic_b[i] = 0; s.conic_c[i] = S(1e6); set_rect_from_conic(s, i, 30, 30); }
     }
-    check_against_reference(s, 30, 30, bg, tol<S>());
+    check_against_reference(s, 30, 30, bg, same_precision_tol<S>());
   }
   SECTION("flattened Gaussians (huge conic along one axis)") {
     auto s = random_splats<S>(150, 40, 30, 51);
     for (std::size_t i = 0; i < s.size(); ++i) { s.conic_a[i] = S(400); s.conic_b[i] = 0; }
-    check_against_reference(s, 40, 30, bg, tol<S>());
+    check_against_reference(s, 40, 30, bg, same_precision_tol<S>());
   }
   SECTION("dense opaque stack stops early (1e-4 rule)") {
     RandomSplatOptions o;
     o.opacity_min = 0.9;
     o.sigma_min = 20; o.sigma_max = 40;
     auto s = random_splats<S>(300, 32, 32, 61, o);
-    check_against_reference(s, 32, 32, bg, tol<S>());
+    check_against_reference(s, 32, 32, bg, same_precision_tol<S>());
     const auto out = render_splats(s, 32, 32);
     CHECK(out.stats.pairs_evaluated < 300u * 32u * 32u / 2u);
   }
@@ -176,7 +173,7 @@ TEMPLATE_TEST_CASE("hard cases", "[render]", float, double) {
     s.color_r[1] = 0; s.color_g[1] = 1; s.color_b[1] = 0;
     const auto out = render_splats(s, 8, 8);
     CHECK(out.color(3, 3, 0) > out.color(3, 3, 1));  // Gaussian 0 is in front
-    check_against_reference(s, 8, 8, bg, tol<S>());
+    check_against_reference(s, 8, 8, bg, same_precision_tol<S>());
   }
 }
 

@@ -38,9 +38,6 @@ GaussianScene<S> random_scene(std::uint32_t seed, std::size_t n, int degree, dou
   return s;
 }
 
-template <class S>
-double tol() { return sizeof(S) == 4 ? 1e-5 : 1e-10; }
-
 }  // namespace
 
 TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd sizes", "[render]", float, double) {
@@ -57,8 +54,8 @@ TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd s
       const auto cam = test_camera<S>(c.w, c.h, S(c.h > 3 ? 1.2 * c.w : 40));
       const auto& out = r.render(SceneView<S>(scene), cam);
       const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-      CHECK(max_abs_diff(out.color, ref.color) <= tol<S>());
-      CHECK(max_abs_diff(out.transmittance, ref.transmittance) <= tol<S>());
+      CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+      CHECK(max_abs_diff(out.transmittance, ref.transmittance) <= same_precision_tol<S>());
       CHECK(max_abs_diff(out.count, ref.count) == 0);
       CHECK(out.frame.gaussians_visible == out.frame.projection.visible);
       CHECK(out.frame.contributions == out.stats.contributions);
@@ -94,14 +91,14 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     CHECK(out.frame.projection.culled_nonfinite >= 1);
     for (S v : out.color.data) CHECK(std::isfinite(v));
     const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= tol<S>());
+    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
   }
   SECTION("flattened Gaussians (zero scale on one axis)") {
     auto scene = random_scene<S>(78, 100, 0);
     for (std::size_t i = 0; i < scene.size(); ++i) scene.log_scales[3 * i + 2] = S(-30);
     const auto& out = r.render(SceneView<S>(scene), cam);
     const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= tol<S>());
+    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
   }
   SECTION("a Gaussian covering the whole image") {
     auto scene = random_scene<S>(79, 1, 0);
@@ -111,7 +108,7 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     CHECK(out.count(0, 0) == 1);
     CHECK(out.count(23, 19) == 1);
     const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= tol<S>());
+    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
   }
 }
 
