@@ -1,6 +1,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <random>
 #include <sstream>
 #include <vector>
 
@@ -41,6 +42,51 @@ TEST_CASE("adam: first step moves every parameter by lr against the gradient sig
   opt.step(id, p.data(), z.data());
   const double expect = 0.1 * (0.09 * 3 / 0.19) / std::sqrt(0.999 * 0.001 * 9 / (1 - 0.999 * 0.999));
   CHECK(before - p[0] == Approx(expect).epsilon(1e-10));
+}
+
+TEMPLATE_TEST_CASE("adam: the SIMD update matches the formula, tails included, for any thread count",
+                   "[nn][adam]", float, double) {
+  using S = TestType;
+  std::mt19937 rng(7);
+  std::normal_distribution<double> nd(0.0, 1.0);
+  // Counts around SIMD widths and past one parallel block (kAdamBlock).
+  for (std::size_t count : {std::size_t(1), std::size_t(3), std::size_t(17), std::size_t(45), kAdamBlock + 13,
+                            2 * kAdamBlock + 5}) {
+    INFO("count " << count);
+    std::vector<S> p0(count), g1(count), g2(count);
+    for (std::size_t i = 0; i < count; ++i) {
+      p0[i] = S(nd(rng));
+      g1[i] = S(nd(rng));
+      g2[i] = S(0.1 * nd(rng));
+    }
+    // Reference: the formula in double, two steps.
+    std::vector<double> rp(p0.begin(), p0.end()), rm(count, 0.0), rv(count, 0.0);
+    const AdamParams ap;
+    const double lr = 0.01;
+    for (int t = 1; t <= 2; ++t) {
+      const auto& g = t == 1 ? g1 : g2;
+      for (std::size_t i = 0; i < count; ++i) {
+        rm[i] = 0.9 * rm[i] + 0.1 * double(g[i]);
+        rv[i] = 0.999 * rv[i] + 0.001 * double(g[i]) * double(g[i]);
+        const double mh = rm[i] / (1 - std::pow(0.9, t)), vh = rv[i] / (1 - std::pow(0.999, t));
+        rp[i] -= lr * mh / (std::sqrt(vh) + ap.eps);
+      }
+    }
+    std::vector<std::vector<S>> results;
+    for (int threads : {1, 2, 3}) {
+      Adam<S> opt(ap);
+      const int id = opt.add_group("p", count, 1, S(lr));
+      std::vector<S> p = p0;
+      Adam<S>::update(opt.group(id), ap, p.data(), g1.data(), count, threads);
+      Adam<S>::update(opt.group(id), ap, p.data(), g2.data(), count, threads);
+      double worst = 0;
+      for (std::size_t i = 0; i < count; ++i) worst = std::max(worst, std::abs(double(p[i]) - rp[i]));
+      CHECK(worst < (sizeof(S) == 4 ? 2e-6 : 1e-12));
+      results.push_back(p);
+    }
+    CHECK(results[1] == results[0]);  // bit for bit
+    CHECK(results[2] == results[0]);
+  }
 }
 
 TEST_CASE("adam: keep, append, gather and save/load", "[nn][adam]") {

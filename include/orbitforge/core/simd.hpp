@@ -11,7 +11,7 @@
 // Vocabulary (B a batch type, M = mask_t<B>):
 //   B::size, B(value) broadcast, B::load_unaligned(p), b.store_unaligned(p),
 //   + - * / and unary -, comparisons < <= > >= giving M, masks combine with & | ~,
-//   fma(x, y, z) = x*y+z, exp, fast_exp, min, max, abs, select(m, a, b),
+//   fma(x, y, z) = x*y+z, exp, fast_exp, min, max, abs, sqrt, select(m, a, b),
 //   hadd(b) (sum of lanes; xsimd 8.1 has hadd, not reduce_add), any(m), all(m).
 #include <cmath>
 #include <cstddef>
@@ -72,6 +72,7 @@ template <class T> inline scalar_batch<T> exp(scalar_batch<T> x) { return std::e
 template <class T> inline scalar_batch<T> min(scalar_batch<T> x, scalar_batch<T> y) { return y.v < x.v ? y.v : x.v; }
 template <class T> inline scalar_batch<T> max(scalar_batch<T> x, scalar_batch<T> y) { return x.v < y.v ? y.v : x.v; }
 template <class T> inline scalar_batch<T> abs(scalar_batch<T> x) { return std::abs(x.v); }
+template <class T> inline scalar_batch<T> sqrt(scalar_batch<T> x) { return std::sqrt(x.v); }
 template <class T> inline scalar_batch<T> select(scalar_mask<T> m, scalar_batch<T> a, scalar_batch<T> b) { return m.v ? a : b; }
 template <class T> inline T hadd(scalar_batch<T> x) { return x.v; }
 template <class T> inline bool any(scalar_mask<T> m) { return m.v; }
@@ -89,6 +90,7 @@ template <class T, class A> inline xsimd::batch<T, A> exp(const xsimd::batch<T, 
 template <class T, class A> inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::min(x, y); }
 template <class T, class A> inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::max(x, y); }
 template <class T, class A> inline xsimd::batch<T, A> abs(const xsimd::batch<T, A>& x) { return xsimd::abs(x); }
+template <class T, class A> inline xsimd::batch<T, A> sqrt(const xsimd::batch<T, A>& x) { return xsimd::sqrt(x); }
 template <class T, class A> inline xsimd::batch<T, A> select(const xsimd::batch_bool<T, A>& m, const xsimd::batch<T, A>& a, const xsimd::batch<T, A>& b) { return xsimd::select(m, a, b); }
 template <class T, class A> inline T hadd(const xsimd::batch<T, A>& x) { return xsimd::hadd(x); }
 template <class T, class A> inline bool any(const xsimd::batch_bool<T, A>& m) { return xsimd::any(m); }

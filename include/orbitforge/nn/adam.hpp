@@ -15,6 +15,7 @@
 // zero moments (clone/split, like 3DGS's cat_tensors_to_optimizer), gather(src)
 // does any reindexing at once. Checkpoints: save/load to a binary stream.
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <istream>
@@ -24,6 +25,8 @@
 
 #include "orbitforge/core/constants.hpp"
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
 #include "orbitforge/nn/binary_io.hpp"
 
 namespace orbitforge {
@@ -58,6 +61,56 @@ struct ExponentialLr {
     return delay * std::exp(std::log(lr_init) * (1.0 - t) + std::log(lr_final) * t);
   }
 };
+
+// The coefficients of one Adam step of a group (bias corrections folded in).
+template <class Scalar>
+struct AdamStep {
+  Scalar b1, b2, eps, step_size, inv_sqrt_bc2;
+  static AdamStep of(const AdamParams& ap, double lr, std::int64_t step) {
+    const double bc1 = 1.0 - std::pow(ap.beta1, double(step));
+    const double bc2 = 1.0 - std::pow(ap.beta2, double(step));
+    return {Scalar(ap.beta1), Scalar(ap.beta2), Scalar(ap.eps), Scalar(lr / bc1), Scalar(1.0 / std::sqrt(bc2))};
+  }
+};
+
+// Values per parallel block of an update (a multiple of every SIMD width).
+constexpr std::size_t kAdamBlock = 16384;
+
+// The Adam arithmetic on `count` values, SIMD (the compiler leaves std::sqrt
+// scalar because of errno). The tail goes through the same vector formula in a
+// zero-padded batch (zero moments give a zero step), so every value is rounded
+// the same way wherever it sits, and results do not depend on addresses, block
+// boundaries or thread counts: two identical runs agree bit for bit.
+template <class Scalar>
+void adam_apply(const AdamStep<Scalar>& c, Scalar* params, const Scalar* grads, Scalar* m, Scalar* v,
+                std::size_t count) {
+  using B = simd::native_batch<Scalar>;
+  constexpr std::size_t L = B::size;
+  const B b1(c.b1), b2(c.b2), a1(Scalar(1) - c.b1), a2(Scalar(1) - c.b2), eps(c.eps), step(c.step_size),
+      inv(c.inv_sqrt_bc2);
+  auto kernel = [&](Scalar* p, const Scalar* g, Scalar* mm, Scalar* vv) {
+    const B gb = B::load_unaligned(g);
+    const B mb = b1 * B::load_unaligned(mm) + a1 * gb;
+    const B vb = b2 * B::load_unaligned(vv) + a2 * gb * gb;
+    mb.store_unaligned(mm);
+    vb.store_unaligned(vv);
+    (B::load_unaligned(p) - step * mb / (simd::sqrt(vb) * inv + eps)).store_unaligned(p);
+  };
+  std::size_t i = 0;
+  for (; i + L <= count; i += L) kernel(params + i, grads + i, m + i, v + i);
+  if (i < count) {
+    Scalar tp[L] = {}, tg[L] = {}, tm[L] = {}, tv[L] = {};
+    const std::size_t r = count - i;
+    std::copy_n(params + i, r, tp);
+    std::copy_n(grads + i, r, tg);
+    std::copy_n(m + i, r, tm);
+    std::copy_n(v + i, r, tv);
+    kernel(tp, tg, tm, tv);
+    std::copy_n(tp, r, params + i);
+    std::copy_n(tm, r, m + i);
+    std::copy_n(tv, r, v + i);
+  }
+}
 
 template <class Scalar>
 class Adam {
@@ -106,24 +159,16 @@ class Adam {
   // params, grads: [rows * row_width] of group `id`.
   void step(int id, Scalar* params, const Scalar* grads) { update(group(id), p_, params, grads, group(id).size()); }
 
-  // One Adam step of a group over `count` values. A plain loop on purpose: with
-  // Eigen packets the scalar head depends on the array's address, and head and
-  // packets can round differently (FMA contraction), so two identical runs could
-  // differ in the last bit, which Adam amplifies for rounding-level gradients.
-  static void update(Group& g, const AdamParams& ap, Scalar* params, const Scalar* grads, std::size_t count) {
+  // One Adam step of a group over `count` values, on `threads` threads.
+  static void update(Group& g, const AdamParams& ap, Scalar* params, const Scalar* grads, std::size_t count,
+                     int threads = 1) {
     ++g.step;
-    const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
-    const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
-    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
-    const Scalar step_size = Scalar(double(g.lr) / bc1);
-    const Scalar inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
-    Scalar* m = g.m.data();
-    Scalar* v = g.v.data();
-    for (std::size_t i = 0; i < count; ++i) {
-      m[i] = b1 * m[i] + (Scalar(1) - b1) * grads[i];
-      v[i] = b2 * v[i] + (Scalar(1) - b2) * grads[i] * grads[i];
-      params[i] -= step_size * m[i] / (std::sqrt(v[i]) * inv_sqrt_bc2 + eps);
-    }
+    const AdamStep<Scalar> c = AdamStep<Scalar>::of(ap, double(g.lr), g.step);
+    const std::size_t blocks = (count + kAdamBlock - 1) / kAdamBlock;
+    parallel_for(blocks, threads, [&](std::size_t b, int) {
+      const std::size_t i0 = b * kAdamBlock, n = std::min(kAdamBlock, count - i0);
+      adam_apply(c, params + i0, grads + i0, g.m.data() + i0, g.v.data() + i0, n);
+    });
   }
 
   // Keeps the rows whose mask entry is true, in order (prune). mask: [rows].
