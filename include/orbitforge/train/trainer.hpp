@@ -92,6 +92,11 @@ struct TrainParams {
   bool densify = true;
   DensifyParams densify_params;
   DensifySchedule densify_schedule;  // published; scaled to the budget
+  // Floor of the scaled densification and opacity-reset intervals. 1 keeps the
+  // published schedule exactly; short budgets may want more (the pipeline uses 50:
+  // scaled to 1000 iterations the schedule densifies every 3 iterations on a
+  // handful of views, and the Gaussian count explodes).
+  int min_densify_interval = 1;
 
   // Deformable training.
   bool deformable = false;
@@ -127,7 +132,7 @@ struct TrainSchedule {
     const double f = double(p.iterations) / double(p.reference_budget);
     s.sh_interval = std::max(1, int(std::lround(p.sh_degree_interval * f)));
     s.warmup = int(std::lround(double(p.warmup_iterations) * double(p.iterations) / double(p.deform_reference_budget)));
-    s.densify = scale_schedule(p.iterations, p.densify_schedule, p.reference_budget);
+    s.densify = scale_schedule(p.iterations, p.densify_schedule, p.reference_budget, p.min_densify_interval);
     return s;
   }
 };
@@ -246,7 +251,7 @@ class Trainer {
       view.base_gradients(vg, base_grad_);
       grad = &base_grad_;
       Adam<Scalar>::update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
-                  v_field_.size());
+                  v_field_.size(), threads);
     }
     last_.psnr = frame_psnr(out->color, frame.image);
 
@@ -478,7 +483,7 @@ class Trainer {
     auto& g = adam_.group(id);
     ensure(params.size() == g.size() && grad.size() == g.size(), "Trainer: optimizer group '", g.name, "' has ",
            g.size(), " values, parameters ", params.size(), ", gradients ", grad.size());
-    Adam<Scalar>::update(g, adam_.params(), params.data(), grad.data(), params.size());
+    Adam<Scalar>::update(g, adam_.params(), params.data(), grad.data(), params.size(), params_.threads);
   }
 
   // Adam on SH with two learning rates: DC (group sh_dc) and the rest (group
@@ -494,31 +499,18 @@ class Trainer {
     const std::size_t rw = std::size_t(rest.row_width);
     ++dc.step;
     ++rest.step;
-    const AdamParams& ap = adam_.params();
-    const Scalar b1 = Scalar(ap.beta1), b2 = Scalar(ap.beta2), eps = Scalar(ap.eps);
-    auto coeffs = [&](const typename Adam<Scalar>::Group& g, Scalar& step_size, Scalar& inv_sqrt_bc2) {
-      const double bc1 = 1.0 - std::pow(ap.beta1, double(g.step));
-      const double bc2 = 1.0 - std::pow(ap.beta2, double(g.step));
-      step_size = Scalar(double(g.lr) / bc1);
-      inv_sqrt_bc2 = Scalar(1.0 / std::sqrt(bc2));
-    };
-    Scalar dc_step, dc_bc2, rest_step, rest_bc2;
-    coeffs(dc, dc_step, dc_bc2);
-    coeffs(rest, rest_step, rest_bc2);
-    auto update = [&](Scalar& p, Scalar g, Scalar& m, Scalar& v, Scalar step_size, Scalar inv_sqrt_bc2) {
-      m = b1 * m + (Scalar(1) - b1) * g;
-      v = b2 * v + (Scalar(1) - b2) * g * g;
-      p -= step_size * m / (std::sqrt(v) * inv_sqrt_bc2 + eps);
-    };
+    const AdamStep<Scalar> cd = AdamStep<Scalar>::of(adam_.params(), double(dc.lr), dc.step);
+    const AdamStep<Scalar> cr = AdamStep<Scalar>::of(adam_.params(), double(rest.lr), rest.step);
     Scalar* sh = scene_.sh.data();
-    for (std::size_t i = 0; i < n; ++i) {
-      Scalar* p = sh + i * std::size_t(k3);
-      const Scalar* g = grad.data() + i * std::size_t(k3);
-      for (int c = 0; c < 3; ++c) update(p[c], g[c], dc.m[3 * i + c], dc.v[3 * i + c], dc_step, dc_bc2);
-      for (int j = 3; j < k3; ++j)
-        update(p[j], g[j], rest.m[i * rw + std::size_t(j - 3)], rest.v[i * rw + std::size_t(j - 3)], rest_step,
-               rest_bc2);
-    }
+    const std::size_t per_block = std::max<std::size_t>(1, kAdamBlock / std::size_t(k3));
+    parallel_for((n + per_block - 1) / per_block, params_.threads, [&](std::size_t b, int) {
+      for (std::size_t i = b * per_block, end = std::min(n, i + per_block); i < end; ++i) {
+        Scalar* p = sh + i * std::size_t(k3);
+        const Scalar* g = grad.data() + i * std::size_t(k3);
+        adam_apply(cd, p, g, dc.m.data() + 3 * i, dc.v.data() + 3 * i, 3);
+        if (k3 > 3) adam_apply(cr, p + 3, g + 3, rest.m.data() + i * rw, rest.v.data() + i * rw, std::size_t(k3 - 3));
+      }
+    });
   }
 
   void densify_now(bool size_prune) {
