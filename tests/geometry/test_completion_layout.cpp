@@ -81,6 +81,26 @@ TEST_CASE("endpoint-window layout: tail, gap, head, closed", "[geometry][layout]
   }
 }
 
+TEST_CASE("target-half anchor error on a 49-frame source over 156 degrees is the paper's 12 / 24",
+          "[geometry][layout]") {
+  // A 49-frame source video (anchors: frames 1, 25, 49) covering 156 degrees sits
+  // at bins 0, 78, 156; target-half places the three anchors at views 0, 90, 180,
+  // i.e. 0, 12 and 24 frames away: mean 12, max 24, as in the paper's ablation.
+  const auto sup = support_of(49, 156.0 / 48);
+  REQUIRE(sup.arc_end == 156);
+  LayoutParams half;
+  half.placement = AnchorPlacement::target_half;
+  const auto H = endpoint_window_layout(sup, names_of(49), half);
+  REQUIRE(H.anchors.size() == 3);
+  CHECK(H.anchors[1].name == "f25");
+  CHECK(std::abs(H.anchors[1].synthetic - H.anchors[1].aligned_synthetic) == 12);
+  CHECK(H.anchor_error_mean == Approx(12.0));
+  CHECK(H.anchor_error_max == Approx(24.0));
+  const auto A = endpoint_window_layout(sup, names_of(49));
+  CHECK(A.anchor_error_mean == 0.0);
+  CHECK(A.anchor_error_max == 0.0);
+}
+
 TEST_CASE("endpoint-window layout: last frame anchor, padding to 8m+1, tiny arcs", "[geometry][layout]") {
   REQUIRE(completion_frame_count(361) == 361);
   REQUIRE(completion_frame_count(49) == 49);
