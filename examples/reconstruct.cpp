@@ -2,7 +2,7 @@
 //
 //   reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]
 //               [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]
-//               [--minutes M] [--eval-every N] [--seed S] --out DIR
+//               [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH] --out DIR
 //
 // DIR (input) holds images/ and sparse/0/ (as shared/data/v3d/*). Frames are the COLMAP
 // images in name order; --frames and --holdout-every count in that order (1-based);
@@ -14,7 +14,8 @@
 // scene.ply (static: the trained scene; deformable: the MedianGS bake) and metrics.json
 // {iterations, seconds, gaussians, train_psnr, holdout_psnr, holdout_ssim,
 // holdout_psnr_baked (deformable), curve (with --eval-every)}. --minutes stops
-// training early after that much training wall time. Errors: a message, exit
+// training early after that much training wall time. --field picks the deformation
+// network (default fast = 4 x 64; original = the published 8 x 256). Errors: a message, exit
 // status 2 (arguments) or 1 (inputs), and no output files.
 #include <unistd.h>
 
@@ -43,7 +44,7 @@ namespace {
 const char* kUsage =
     "usage: reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]\n"
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
-    "                   [--minutes M] [--eval-every N] [--seed S] --out DIR\n";
+    "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH] --out DIR\n";
 
 using cli::UsageError;
 
@@ -55,7 +56,20 @@ struct Args {
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
+  DeformationFieldParams field = DeformationFieldParams::fast();
 };
+
+// --field: "fast" (4 x 64, the default), "original" (8 x 256 with its skip) or DEPTHxWIDTH.
+DeformationFieldParams parse_field(const std::string& v) {
+  if (v == "fast") return DeformationFieldParams::fast();
+  if (v == "original") return DeformationFieldParams::original();
+  const auto x = v.find('x');
+  if (x == std::string::npos) throw UsageError("reconstruct: --field must be fast, original or DEPTHxWIDTH, got '" + v + "'");
+  DeformationFieldParams f = DeformationFieldParams::fast();
+  f.depth = int(cli::parse_int("reconstruct", "--field", v.substr(0, x), 1));
+  f.width = int(cli::parse_int("reconstruct", "--field", v.substr(x + 1), 1));
+  return f;
+}
 
 long to_long(const std::string& flag, const std::string& v, long lo) {
   return cli::parse_int("reconstruct", flag, v, lo);
@@ -85,6 +99,7 @@ Args parse(int argc, char** argv) {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
     } else if (f == "--deformable") a.deformable = true;
+    else if (f == "--field") a.field = parse_field(value());
     else if (f == "--background") {
       a.background = cli::parse_rgb("reconstruct", f, value());
     } else if (f == "--out") a.out = value();
@@ -184,6 +199,7 @@ int run(const Args& a) {
   p.threads = a.threads;
   p.background = a.background;
   p.deformable = a.deformable;
+  p.field = a.field;
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;
@@ -229,6 +245,7 @@ int run(const Args& a) {
   m["iterations"] = trainer.iteration();
   m["seconds"] = train_seconds;
   m["gaussians"] = trainer.scene().size();
+  if (a.deformable) m["field"] = std::to_string(a.field.depth) + "x" + std::to_string(a.field.width);
   m["train_psnr"] = evaluate(trainer, d.train, a.threads, false).psnr;
   if (!d.holdout.empty()) {
     const Eval e = evaluate(trainer, d.holdout, a.threads, true);
