@@ -12,4 +12,6 @@ generator=()
 command -v ninja >/dev/null && generator=(-G Ninja)
 cmake -S . -B "$BUILD_DIR" "${generator[@]}" -DCMAKE_BUILD_TYPE="$BUILD_TYPE" "${launcher[@]}" -DORBITFORGE_BUILD_TESTS=ON "$@"
 cmake --build "$BUILD_DIR" --parallel "$(nproc)"
-ctest --test-dir "$BUILD_DIR" --output-on-failure --timeout 1500
+# Tests in parallel: the longest (the trainer under the sanitizers, ~3 min) then
+# overlaps all the others.
+ctest --test-dir "$BUILD_DIR" --output-on-failure --timeout 1500 --parallel "$(nproc)"
