@@ -155,6 +155,52 @@ TEST_CASE("rasterize_backward with early-stopped pixels matches finite differenc
   check_fd(s, 20, 18, 16, true, true, 3);
 }
 
+TEST_CASE("rasterize_backward skips entries past a tile's last replay", "[render][grad]") {
+  // Opaque Gaussians stop some tiles early, so a Gaussian can be listed past
+  // every replay in one tile (its slot there is never written) and replayed in
+  // another: the per-Gaussian sum must skip only the former.
+  RandomSplatOptions o;
+  o.opacity_min = 0.6;
+  o.opacity_max = 0.95;
+  o.sigma_min = 2;
+  o.sigma_max = 7;
+  const int W = 40, H = 24, tile = 8;
+  auto s = random_splats<double>(80, W, H, 404, o);
+  clear_thresholds(s, W, H, 1e-3);
+  REQUIRE(threshold_violators(s, W, H, 1e-3).empty());
+  BinWorkspace<double> bins;
+  bin_splats(s, W, H, tile, bins);
+  RasterOutput<double> out;
+  RasterWorkspace<double> ws;
+  rasterize(bins, RasterParams<double>{}, out, ws);
+  // Some Gaussian is listed past every replay in one tile (its slot there is
+  // never written) and replayed in another: the sum must skip only the former.
+  const TileGrid& g = bins.grid;
+  std::vector<int> tile_max(std::size_t(g.tile_count()), 0);
+  for (int y = 0; y < g.height; ++y)
+    for (int x = 0; x < g.width; ++x) {
+      const std::size_t t = std::size_t((y / g.tile_size) * g.tiles_x + x / g.tile_size);
+      tile_max[t] = std::max(tile_max[t], out.replay[std::size_t(y) * std::size_t(g.width) + std::size_t(x)]);
+    }
+  std::vector<int> live(bins.visible(), 0), dead(bins.visible(), 0);
+  for (int t = 0; t < g.tile_count(); ++t)
+    for (std::uint32_t e = bins.tile_offsets[std::size_t(t)]; e < bins.tile_offsets[std::size_t(t) + 1]; ++e)
+      ++(int(e - bins.tile_offsets[std::size_t(t)]) < tile_max[std::size_t(t)] ? live : dead)[std::size_t(bins.tile_ranks[e])];
+  int mixed = 0;
+  for (std::size_t r = 0; r < live.size(); ++r) mixed += live[r] > 0 && dead[r] > 0;
+  REQUIRE(mixed > 0);
+  // A workspace reused from another frame holds that frame's slots (here made
+  // conspicuous): none may leak into the sums.
+  const LossWeights lw = random_weights(W, H, 4, true, true);
+  RasterGradOutput<double> fresh, reused;
+  RasterWorkspace<double> ws_fresh;
+  rasterize_backward(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), fresh, ws_fresh);
+  ws.pair_grad.assign(bins.pairs() * 10, 1e6);
+  rasterize_backward(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), reused, ws);
+  for (int f = 0; f < 10; ++f) CHECK(*grad_field(fresh.splats, f) == *grad_field(reused.splats, f));
+  check_fd(s, W, H, tile, true, true, 4);
+}
+
 TEST_CASE("gradients are zero where the forward clamps or skips", "[render][grad]") {
   ProjectedSplats<double> s;
   s.resize(3);

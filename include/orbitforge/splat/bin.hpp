@@ -75,6 +75,9 @@ struct BinWorkspace {
   // gradients there so that summing them per Gaussian streams through memory.
   std::vector<std::uint32_t> entry_slot;       // [pairs]
   std::vector<std::uint32_t> rank_offsets;     // [visible + 1]
+  // [V] rank r's tile box (tile x0, y0, x1, y1; Gaussian index): its slots
+  // rank_offsets[r] .. are these tiles in row-major order.
+  std::vector<std::array<std::int32_t, 5>> rank_boxes;
   // Timings of the last bin_splats call.
   double sort_ms = 0, bin_ms = 0;
 
@@ -86,7 +89,7 @@ struct BinWorkspace {
   std::vector<Key> keys_, keys_tmp_;
   std::vector<std::int32_t> perm_, idx_tmp_;
   std::vector<SplatRecord<Scalar>> packed_;
-  std::vector<std::array<std::int32_t, 5>> packed_boxes_, boxes_;  // tile range x0, y0, x1, y1; index
+  std::vector<std::array<std::int32_t, 5>> packed_boxes_;  // tile range x0, y0, x1, y1; index
   std::vector<std::uint32_t> chunk_counts_;  // [chunks][tiles] counts, then cursors
   std::vector<std::uint64_t> chunk_entries_; // [chunks + 1] rank-major entry offsets
 };
@@ -212,7 +215,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   const std::size_t v = ws.perm_.size();
   ws.records.resize(v);
   ws.order.resize(v);
-  ws.boxes_.resize(v);
+  ws.rank_boxes.resize(v);
   const std::size_t tiles = std::size_t(g.tile_count());
   const int tiles_x = g.tiles_x;
   const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), v / 4096));
@@ -234,7 +237,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
 #endif
       ws.records[r] = ws.packed_[p];
       const auto box = ws.packed_boxes_[p];
-      ws.boxes_[r] = box;
+      ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
       for (int ty = box[1]; ty <= box[3]; ++ty)
         for (int tx = box[0]; tx <= box[2]; ++tx) ++counts[ty * tiles_x + tx];
@@ -274,7 +277,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
     std::uint32_t* slot = ws.entry_slot.data();
     std::uint32_t k = std::uint32_t(ws.chunk_entries_[c]);  // rank-major position of the next entry
     for (std::size_t r = r0; r < r1; ++r) {
-      const auto box = ws.boxes_[r];
+      const auto box = ws.rank_boxes[r];
       ws.rank_offsets[r] = k;
       for (int ty = box[1]; ty <= box[3]; ++ty)
         for (int tx = box[0]; tx <= box[2]; ++tx) {

@@ -103,6 +103,7 @@ struct RasterWorkspace {
   // Backward only.
   std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
   std::vector<Scalar> pair_grad;                    // [pairs][10] rank-major (BinWorkspace::entry_slot)
+  std::vector<std::int32_t> live_rank_end;          // [tiles] entries of rank >= this were not replayed
 };
 
 namespace detail {
@@ -120,60 +121,62 @@ void prepare_raster_output(const TileGrid& g, RasterOutput<Scalar>& out) {
   out.replay.resize(std::size_t(g.width) * std::size_t(g.height));
 }
 
+// One chunk's running state while it walks the tile's list front to back.
 template <class B, bool FastExp, class Scalar>
-void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L, const RasterParams<Scalar>& params,
-                    RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out) {
+struct ChunkBlend {
   using M = simd::mask_t<B>;
   using Rules = RasterRules<Scalar>;
-  constexpr std::size_t N = B::size;
-  const TileGrid& g = bins.grid;
-  const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
-  const Scalar fx0 = Scalar(tx0), fy0 = Scalar(ty0);
-  const std::int32_t* ranks = bins.tile_ranks.data() + bins.tile_offsets[std::size_t(t)];
-  const int n = int(bins.tile_offsets[std::size_t(t) + 1] - bins.tile_offsets[std::size_t(t)]);
-  const SplatRecord<Scalar>* rec = bins.records.data();
-  const B width(Scalar(g.width)), height(Scalar(g.height));
-  const B zero(Scalar(0)), one(Scalar(1));
-  std::uint64_t evaluated = 0, contributions = 0;
+  Scalar cxl, cxh, cyl, cyh;  // pixel-centre bounds of the chunk (scalar culling)
+  B px, py;
+  M active;
+  B T, cr, cg, cb, dep, cnt, last, ev;
+  bool live;
 
-  for (int k = 0; k < L.chunks; ++k) {
-    const Scalar cxl = fx0 + L.cx_lo[std::size_t(k)], cxh = fx0 + L.cx_hi[std::size_t(k)];
-    const Scalar cyl = fy0 + L.cy_lo[std::size_t(k)], cyh = fy0 + L.cy_hi[std::size_t(k)];
-    if (cyl > Scalar(g.height) || cxl > Scalar(g.width)) continue;  // chunk wholly outside the image
-    const B px = B::load_unaligned(L.ox.data() + std::size_t(k) * N) + B(fx0);
-    const B py = B::load_unaligned(L.oy.data() + std::size_t(k) * N) + B(fy0);
-    M active = (px < width) & (py < height);
-    B T = one, cr = zero, cg = zero, cb = zero, dep = zero, cnt = zero, last = zero, ev = zero;
+  ChunkBlend(int k, const TileLanes<Scalar>& L, Scalar fx0, Scalar fy0, const TileGrid& g) {
+    const std::size_t N = B::size;
+    cxl = fx0 + L.cx_lo[std::size_t(k)]; cxh = fx0 + L.cx_hi[std::size_t(k)];
+    cyl = fy0 + L.cy_lo[std::size_t(k)]; cyh = fy0 + L.cy_hi[std::size_t(k)];
+    px = B::load_unaligned(L.ox.data() + std::size_t(k) * N) + B(fx0);
+    py = B::load_unaligned(L.oy.data() + std::size_t(k) * N) + B(fy0);
+    active = (px < B(Scalar(g.width))) & (py < B(Scalar(g.height)));
+    T = B(Scalar(1));
+    cr = cg = cb = dep = cnt = last = ev = B(Scalar(0));
+    live = simd::any(active);  // false for a chunk wholly outside the image
+  }
 
-    for (int j = 0; j < n; ++j) {
-      const SplatRecord<Scalar>& G = rec[ranks[j]];
-      // Whole chunk outside the Gaussian's rect: nothing to do (scalar test).
-      if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) continue;
-      const M inside = active & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
-      const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
-      // power = -0.5 (a dx^2 + c dy^2) - b dx dy
-      const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
-      const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
-      const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
-      const B alpha = simd::min(B(Rules::max_alpha()), B(G.opacity) * e);
-      const M valid = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
-      const B T_next = T * (one - alpha);
-      const M blend = valid & (T_next >= B(Rules::min_transmittance()));
-      // A valid pair that would push T below 1e-4 stops the pixel unblended.
-      active = active & ~(valid & (T_next < B(Rules::min_transmittance())));
-      const B w = simd::select(blend, alpha * T, zero);
-      cr = simd::fma(w, B(G.color_r), cr);
-      cg = simd::fma(w, B(G.color_g), cg);
-      cb = simd::fma(w, B(G.color_b), cb);
-      dep = simd::fma(w, B(G.depth), dep);
-      T = simd::select(blend, T_next, T);
-      cnt = cnt + simd::select(blend, one, zero);
-      last = simd::select(blend, B(Scalar(j + 1)), last);
-      ev = ev + simd::select(inside, one, zero);
-      if (!simd::any(active)) break;  // every lane of the chunk is done
-    }
+  // Blend list entry j (Gaussian G) into the chunk's live lanes.
+  void step(const SplatRecord<Scalar>& G, int j) {
+    // Whole chunk outside the Gaussian's rect: nothing to do (scalar test).
+    if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) return;
+    const B zero(Scalar(0)), one(Scalar(1));
+    const M inside = active & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
+    const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
+    // power = -0.5 (a dx^2 + c dy^2) - b dx dy
+    const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
+    const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
+    const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
+    const B alpha = simd::min(B(Rules::max_alpha()), B(G.opacity) * e);
+    const M valid = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
+    const B T_next = T * (one - alpha);
+    const M blend = valid & (T_next >= B(Rules::min_transmittance()));
+    // A valid pair that would push T below 1e-4 stops the pixel unblended.
+    active = active & ~(valid & (T_next < B(Rules::min_transmittance())));
+    const B w = simd::select(blend, alpha * T, zero);
+    cr = simd::fma(w, B(G.color_r), cr);
+    cg = simd::fma(w, B(G.color_g), cg);
+    cb = simd::fma(w, B(G.color_b), cb);
+    dep = simd::fma(w, B(G.depth), dep);
+    T = simd::select(blend, T_next, T);
+    cnt = cnt + simd::select(blend, one, zero);
+    last = simd::select(blend, B(Scalar(j + 1)), last);
+    ev = ev + simd::select(inside, one, zero);
+    live = simd::any(active);
+  }
 
-    // Scatter the chunk's lanes to the images (dead lanes are not written).
+  // Scatter the chunk's lanes to the images (dead lanes are not written).
+  void store(int k, const TileLanes<Scalar>& L, int tx0, int ty0, const TileGrid& g, const RasterParams<Scalar>& params,
+             RasterOutput<Scalar>& out, std::uint64_t& evaluated, std::uint64_t& contributions) const {
+    constexpr std::size_t N = B::size;
     alignas(64) Scalar s_T[N], s_r[N], s_g[N], s_b[N], s_d[N], s_n[N], s_l[N], s_e[N];
     T.store_unaligned(s_T); cr.store_unaligned(s_r); cg.store_unaligned(s_g); cb.store_unaligned(s_b);
     dep.store_unaligned(s_d); cnt.store_unaligned(s_n); last.store_unaligned(s_l); ev.store_unaligned(s_e);
@@ -193,6 +196,41 @@ void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Sca
       contributions += std::uint64_t(s_n[l]);
       evaluated += std::uint64_t(s_e[l]);
     }
+  }
+};
+
+// Two chunks walk the list together: each chunk's transmittance update is a
+// serial dependency (multiply, compare, select) that left one chunk latency
+// bound; two independent chains fill the gaps. Each chunk's arithmetic and
+// order are unchanged, so the image is the same bit for bit.
+template <class B, bool FastExp, class Scalar>
+void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L, const RasterParams<Scalar>& params,
+                    RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out) {
+  using Chunk = ChunkBlend<B, FastExp, Scalar>;
+  const TileGrid& g = bins.grid;
+  const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
+  const Scalar fx0 = Scalar(tx0), fy0 = Scalar(ty0);
+  const std::int32_t* ranks = bins.tile_ranks.data() + bins.tile_offsets[std::size_t(t)];
+  const int n = int(bins.tile_offsets[std::size_t(t) + 1] - bins.tile_offsets[std::size_t(t)]);
+  const SplatRecord<Scalar>* rec = bins.records.data();
+  std::uint64_t evaluated = 0, contributions = 0;
+
+  for (int k = 0; k < L.chunks; k += 2) {
+    Chunk a(k, L, fx0, fy0, g);
+    Chunk b(std::min(k + 1, L.chunks - 1), L, fx0, fy0, g);
+    const bool pair = k + 1 < L.chunks;
+    if (!pair) b.live = false;
+    for (int j = 0; j < n && (a.live || b.live); ++j) {
+#if defined(__GNUC__)
+      // The first chunks meet the tile's records scattered over the rank range.
+      if (k == 0 && j + 8 < n) __builtin_prefetch(&rec[ranks[j + 8]]);
+#endif
+      const SplatRecord<Scalar>& G = rec[ranks[j]];
+      if (a.live) a.step(G, j);
+      if (b.live) b.step(G, j);
+    }
+    a.store(k, L, tx0, ty0, g, params, out, evaluated, contributions);
+    if (pair) b.store(k + 1, L, tx0, ty0, g, params, out, evaluated, contributions);
   }
   evaluated_out += evaluated;
   contributions_out += contributions;

@@ -18,9 +18,14 @@
 // per-(tile, Gaussian) buffer (laid out Gaussian-major, see BinWorkspace); the
 // slots are added up in tile order afterwards.
 // Results therefore do not depend on the thread count or scheduling.
+// A tile writes only the slots of entries some pixel replays (a prefix of its
+// list) and records where that prefix ends as a rank; the sum skips the rest.
+// Zeroing the dead entries instead cost a scattered cache-line write each, 13%
+// of the backward kernel at 896x512 with 300k Gaussians.
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
@@ -51,7 +56,7 @@ template <class B, bool FastExp, class Scalar>
 void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
                              const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
                              const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
-                             Scalar* scratch, Scalar* pair_grad) {
+                             Scalar* scratch, Scalar* pair_grad, std::int32_t& live_rank_end) {
   using M = simd::mask_t<B>;
   using Rules = RasterRules<Scalar>;
   constexpr std::size_t N = B::size;
@@ -100,13 +105,17 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
     chunk_max[k] = Scalar(cmax);
     tile_max = std::max(tile_max, cmax);
   }
-  // Entries past every pixel's last blend get zero gradient.
+  // Entries from tile_max on (ranks >= live_rank_end) are never replayed: their
+  // slots are left unwritten and skipped by the sum.
   const std::uint32_t* slot = bins.entry_slot.data() + off;
-  for (int j = tile_max; j < n; ++j)
-    for (int f = 0; f < kGradFields; ++f) pair_grad[std::size_t(slot[j]) * kGradFields + std::size_t(f)] = Scalar(0);
+  live_rank_end = tile_max < n ? ranks[tile_max] : std::numeric_limits<std::int32_t>::max();
 
   const B zero(Scalar(0)), one(Scalar(1));
   for (int j = tile_max - 1; j >= 0; --j) {
+#if defined(__GNUC__)
+    // The records of a tile are scattered over the whole rank range.
+    if (j >= 8) __builtin_prefetch(&rec[ranks[j - 8]]);
+#endif
     const SplatRecord<Scalar>& G = rec[ranks[j]];
     const B jj = B(Scalar(j));
     B g_o = zero, g_a = zero, g_b = zero, g_c = zero, g_mx = zero, g_my = zero;
@@ -205,12 +214,14 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   ws.worker_scratch.resize(std::size_t(threads));
   for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
+  ws.live_rank_end.resize(std::size_t(g.tile_count()));
 
   auto run = [&](auto fast) {
     constexpr bool Fast = decltype(fast)::value;
     parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
       detail::rasterize_backward_tile<B, Fast>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha, v_depth,
-                                                ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data());
+                                                ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data(),
+                                                ws.live_rank_end[t]);
     });
   };
   if (params.fast_exp) run(std::true_type{});
@@ -218,6 +229,7 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
 
   // Sum each Gaussian's per-tile slots (stored rank-major, in tile order:
   // deterministic), streaming through pair_grad; ranks split across workers.
+  // Rank r's slots are the tiles of its tile box in row-major order (bin_splats).
   const std::size_t visible = bins.visible();
   constexpr std::size_t F = detail::kGradFields;
   ProjectedSplatsGrad<Scalar>& gr = out.splats;
@@ -231,8 +243,13 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
     const Scalar* pg = ws.pair_grad.data();
     for (std::size_t r = lo; r < hi; ++r) {
       Scalar sum[F] = {};
-      for (std::size_t k = bins.rank_offsets[r]; k < bins.rank_offsets[r + 1]; ++k)
-        for (std::size_t f = 0; f < F; ++f) sum[f] += pg[k * F + f];
+      const auto& box = bins.rank_boxes[r];
+      std::size_t k = bins.rank_offsets[r];
+      for (int ty = box[1]; ty <= box[3]; ++ty)
+        for (int tx = box[0]; tx <= box[2]; ++tx, ++k) {
+          if (std::int32_t(r) >= ws.live_rank_end[std::size_t(ty) * std::size_t(g.tiles_x) + std::size_t(tx)]) continue;
+          for (std::size_t f = 0; f < F; ++f) sum[f] += pg[k * F + f];
+        }
       const std::size_t i = std::size_t(bins.order[r]);
       for (std::size_t f = 0; f < F; ++f) fields[f][i] = sum[f];
     }
