@@ -22,7 +22,10 @@
 // The 2D filter runs as two 1D passes (rows, then columns), which is exact for a
 // separable window under zero padding. The backward pass filters three per-pixel
 // derivative maps with the same window: zero-padded convolution with a symmetric
-// window is its own adjoint. All work is split over rows with parallel_for; partial
+// window is its own adjoint. Rows of the intermediate maps are planar ([map][x]), so
+// the per-pixel SSIM arithmetic runs on contiguous arrays and vectorises (the
+// interleaved [x][map] layout left it scalar, most of the loss's time).
+// All work is split over rows with parallel_for; partial
 // sums are kept per row and added in row order, so results do not depend on the thread
 // count. A caller-owned SsimWorkspace holds every buffer: after the first call at a
 // given size nothing allocates.
@@ -34,6 +37,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
 
 namespace orbitforge {
 
@@ -52,9 +56,9 @@ struct SsimWorkspace {
   bool forward_done = false;
   SsimParams params;                        // params of the last forward pass
   std::vector<Scalar> window;               // [window] normalised 1D weights
-  std::vector<Scalar> horizontal;           // [H][W][5C] row-filtered stats (backward: [H][W][3C])
-  std::vector<Scalar> dmaps;                // [H][W][3C] d mean-SSIM / d(mu_x, G*x^2, G*xy)
-  std::vector<std::vector<Scalar>> rows;    // [worker][W * 5C] scratch rows
+  std::vector<Scalar> horizontal;           // [H][5C][W] row-filtered stats (backward: [H][3C][W])
+  std::vector<Scalar> dmaps;                // [H][3C][W] d mean-SSIM / d(mu_x, G*x^2, G*xy)
+  std::vector<std::vector<Scalar>> rows;    // [worker][(5C + 1) * W] scratch rows
   std::vector<double> row_sums;             // [H] per-row partial sums
 };
 
@@ -99,22 +103,22 @@ void gaussian_window(const SsimParams& p, std::vector<Scalar>& w) {
   for (int k = 0; k < p.window; ++k) w[std::size_t(k)] = Scalar(g[std::size_t(k)] / sum);
 }
 
-// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width);
-// rows hold `stride` values per pixel. Long contiguous multiply-adds, one per tap
-// pair (the window is symmetric), which compilers vectorise well.
+// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
+// for each of `planes` consecutive rows of `width` values. Contiguous
+// multiply-adds, one per tap pair (the window is symmetric), which compilers
+// vectorise well.
 template <class Scalar>
-void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int stride,
-                const Scalar* w, int r) {
-  const std::ptrdiff_t n = std::ptrdiff_t(width) * stride;
+void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r) {
   const Scalar wc = w[r];
-  for (std::ptrdiff_t i = 0; i < n; ++i) out[i] = wc * in[i];
-  for (int d = 1; d <= r && d < width; ++d) {
-    const std::ptrdiff_t off = std::ptrdiff_t(d) * stride;
-    const Scalar wd = w[r + d];  // == w[r - d]
-    // Interior: both taps inside; ends: only one of them.
-    for (std::ptrdiff_t i = off; i < n - off; ++i) out[i] += wd * (in[i + off] + in[i - off]);
-    for (std::ptrdiff_t i = 0; i < std::min(off, n - off); ++i) out[i] += wd * in[i + off];
-    for (std::ptrdiff_t i = std::max(off, n - off); i < n; ++i) out[i] += wd * in[i - off];
+  for (int p = 0; p < planes; ++p, in += width, out += width) {
+    for (int i = 0; i < width; ++i) out[i] = wc * in[i];
+    for (int d = 1; d <= r && d < width; ++d) {
+      const Scalar wd = w[r + d];  // == w[r - d]
+      // Interior: both taps inside; ends: only one of them.
+      for (int i = d; i < width - d; ++i) out[i] += wd * (in[i + d] + in[i - d]);
+      for (int i = 0; i < std::min(d, width - d); ++i) out[i] += wd * in[i + d];
+      for (int i = std::max(d, width - d); i < width; ++i) out[i] += wd * in[i - d];
+    }
   }
 }
 
@@ -220,7 +224,7 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   ws.horizontal.resize(row5 * std::size_t(H));
   ws.dmaps.resize(std::size_t(W) * S3 * std::size_t(H));
   ws.row_sums.resize(std::size_t(H));
-  prepare_rows(ws, threads, row5);
+  prepare_rows(ws, threads, row5 + std::size_t(W));
   ws.width = W;
   ws.height = H;
   ws.channels = C;
@@ -232,21 +236,26 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
   const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
 
-  // Pass 1: per row, the five per-pixel products, filtered along the row.
+  // Pass 1: per row, the five per-pixel products (planes x, y, x^2, y^2, xy, each
+  // C channels), filtered along the row.
+  const std::size_t Wz = std::size_t(W);
   parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
     Scalar* prod = ws.rows[std::size_t(worker)].data();
-    const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
-    const Scalar* t = target.data.data() + y * std::size_t(W) * C;
-    for (int px = 0; px < W; ++px) {
-      Scalar* o = prod + std::size_t(px) * S5;
-      const Scalar* xp = x + std::size_t(px) * C;
-      const Scalar* tp = t + std::size_t(px) * C;
-      for (int c = 0; c < C; ++c) {
-        o[c] = xp[c];
-        o[C + c] = tp[c];
-        o[2 * C + c] = xp[c] * xp[c];
-        o[3 * C + c] = tp[c] * tp[c];
-        o[4 * C + c] = xp[c] * tp[c];
+    const Scalar* x = pred.data.data() + y * Wz * std::size_t(C);
+    const Scalar* t = target.data.data() + y * Wz * std::size_t(C);
+    for (int c = 0; c < C; ++c) {
+      Scalar* px_ = prod + std::size_t(c) * Wz;
+      Scalar* py_ = prod + std::size_t(C + c) * Wz;
+      Scalar* pxx = prod + std::size_t(2 * C + c) * Wz;
+      Scalar* pyy = prod + std::size_t(3 * C + c) * Wz;
+      Scalar* pxy = prod + std::size_t(4 * C + c) * Wz;
+      for (std::size_t px = 0; px < Wz; ++px) {
+        const Scalar a = x[px * std::size_t(C) + std::size_t(c)], b = t[px * std::size_t(C) + std::size_t(c)];
+        px_[px] = a;
+        py_[px] = b;
+        pxx[px] = a * a;
+        pyy[px] = b * b;
+        pxy[px] = a * b;
       }
     }
     filter_row(prod, ws.horizontal.data() + y * row5, W, S5, w, r);
@@ -257,28 +266,46 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
     Scalar* m = ws.rows[std::size_t(worker)].data();
     filter_column(ws.horizontal.data(), m, int(y), H, row5, w, r);
-    Scalar* dm = ws.dmaps.data() + y * std::size_t(W) * S3;
+    Scalar* dm = ws.dmaps.data() + y * Wz * std::size_t(S3);
     double row_sum = 0;
-    for (int px = 0; px < W; ++px) {
-      const Scalar* s = m + std::size_t(px) * S5;
-      Scalar* d = dm + std::size_t(px) * S3;
-      Scalar pixel_sum = 0;
-      for (int c = 0; c < C; ++c) {
-        const Scalar mx = s[c], my = s[C + c];
-        const Scalar sxx = s[2 * C + c] - mx * mx;
-        const Scalar syy = s[3 * C + c] - my * my;
-        const Scalar sxy = s[4 * C + c] - mx * my;
-        const Scalar a1 = 2 * mx * my + c1, a2 = 2 * sxy + c2;
-        const Scalar b1 = mx * mx + my * my + c1, b2 = sxx + syy + c2;
-        const Scalar inv = Scalar(1) / (b1 * b2);
-        const Scalar val = a1 * a2 * inv;
-        pixel_sum += val;
+    for (int c = 0; c < C; ++c) {
+      const Scalar* __restrict mmx = m + std::size_t(c) * Wz;
+      const Scalar* __restrict mmy = m + std::size_t(C + c) * Wz;
+      const Scalar* __restrict mxx = m + std::size_t(2 * C + c) * Wz;
+      const Scalar* __restrict myy = m + std::size_t(3 * C + c) * Wz;
+      const Scalar* __restrict mxy = m + std::size_t(4 * C + c) * Wz;
+      Scalar* __restrict d0 = dm + std::size_t(c) * Wz;
+      Scalar* __restrict d1 = dm + std::size_t(C + c) * Wz;
+      Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * Wz;
+      Scalar* __restrict vals = m + std::size_t(S5) * Wz;  // SSIM of each pixel, summed below
+      // Explicit SIMD: GCC leaves this loop scalar ("no vectype"), and it was
+      // most of the loss's time.
+      auto ssim_at = [&](auto lanes, std::size_t px) {
+        using B = decltype(lanes);
+        const B mx = B::load_unaligned(mmx + px), my = B::load_unaligned(mmy + px);
+        const B sxx = B::load_unaligned(mxx + px) - mx * mx;
+        const B syy = B::load_unaligned(myy + px) - my * my;
+        const B sxy = B::load_unaligned(mxy + px) - mx * my;
+        const B two(Scalar(2));
+        const B a1 = two * mx * my + B(c1), a2 = two * sxy + B(c2);
+        const B b1 = mx * mx + my * my + B(c1), b2 = sxx + syy + B(c2);
+        const B inv = B(Scalar(1)) / (b1 * b2);
+        const B val = a1 * a2 * inv;
+        val.store_unaligned(vals + px);
         // d val / d mu_x holding G*x^2 and G*xy fixed (they carry their own terms).
-        d[c] = scale * (2 * my * (a2 - a1) * inv - val * (2 * mx / b1 - 2 * mx / b2));
-        d[C + c] = scale * (-val / b2);          // d val / d (G*x^2)
-        d[2 * C + c] = scale * (2 * a1 * inv);   // d val / d (G*xy)
-      }
-      row_sum += double(pixel_sum);
+        (B(scale) * (two * my * (a2 - a1) * inv - val * (two * mx / b1 - two * mx / b2))).store_unaligned(d0 + px);
+        (B(scale) * (-val / b2)).store_unaligned(d1 + px);       // d val / d (G*x^2)
+        (B(scale) * (two * a1 * inv)).store_unaligned(d2 + px);  // d val / d (G*xy)
+      };
+      using VB = simd::native_batch<Scalar>;
+      std::size_t px = 0;
+      for (; px + VB::size <= Wz; px += VB::size) ssim_at(VB(), px);
+      for (; px < Wz; ++px) ssim_at(simd::scalar_batch<Scalar>(), px);
+      // A separate sum keeps the loop above free of a float reduction, which
+      // compilers do not vectorise without reassociating.
+      Scalar plane_sum = 0;
+      for (std::size_t px = 0; px < Wz; ++px) plane_sum += vals[px];
+      row_sum += double(plane_sum);
     }
     ws.row_sums[y] = row_sum;
   });
@@ -325,11 +352,14 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
     const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
     const Scalar* t = target.data.data() + y * std::size_t(W) * C;
     Scalar* v = v_pred.data.data() + y * std::size_t(W) * C;
-    for (int px = 0; px < W; ++px) {
-      const Scalar* fp = f + std::size_t(px) * S3;
-      for (int c = 0; c < C; ++c) {
-        const std::size_t i = std::size_t(px) * C + std::size_t(c);
-        const Scalar g = v_ssim * (fp[c] + 2 * x[i] * fp[C + c] + t[i] * fp[2 * C + c]);
+    const std::size_t Wz = std::size_t(W);
+    for (int c = 0; c < C; ++c) {
+      const Scalar* f0 = f + std::size_t(c) * Wz;
+      const Scalar* f1 = f + std::size_t(C + c) * Wz;
+      const Scalar* f2 = f + std::size_t(2 * C + c) * Wz;
+      for (std::size_t px = 0; px < Wz; ++px) {
+        const std::size_t i = px * std::size_t(C) + std::size_t(c);
+        const Scalar g = v_ssim * (f0[px] + 2 * x[i] * f1[px] + t[i] * f2[px]);
         v[i] = accumulate ? v[i] + g : g;
       }
     }
