@@ -105,8 +105,9 @@ void check_gradient(Image<double> x, const Image<double>& analytic, const std::f
 struct Size {
   int w, h, c;
 };
-// Small, larger than the window in both directions, and smaller than the window.
-const Size kSizes[] = {{13, 9, 3}, {17, 14, 3}, {6, 4, 3}, {12, 12, 1}};
+// Small, larger than the window in both directions, smaller than the window, and
+// tall enough that the 2D filter runs in more than one band of rows (64 or more each).
+const Size kSizes[] = {{13, 9, 3}, {17, 14, 3}, {6, 4, 3}, {12, 12, 1}, {6, 130, 2}};
 
 }  // namespace
 

@@ -128,8 +128,11 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       const std::size_t base = std::size_t(k) * N;
       const B px = B::load_unaligned(L.ox.data() + base) + B(fx0);
       const B py = B::load_unaligned(L.oy.data() + base) + B(fy0);
-      const M inside = (jj < B::load_unaligned(sRep + base)) & (px > B(G.x_lo)) & (px < B(G.x_hi)) &
-                       (py > B(G.y_lo)) & (py < B(G.y_hi));
+      const M replayed = jj < B::load_unaligned(sRep + base);
+      // Per-lane rect tests only for chunks the rect cuts.
+      const bool whole = G.x_lo < cxl && G.x_hi > cxh && G.y_lo < cyl && G.y_hi > cyh;
+      const M inside = whole ? replayed
+                             : replayed & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
       // Same arithmetic as the forward, so alpha (and the skip decisions) match bit for bit.
       const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
       const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
@@ -169,17 +172,9 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       g_mx = simd::fma(v_power, simd::fma(B(G.conic_a), dx, B(G.conic_b) * dy), g_mx);
       g_my = simd::fma(v_power, simd::fma(B(G.conic_b), dx, B(G.conic_c) * dy), g_my);
     }
-    Scalar* out = pair_grad + std::size_t(slot[j]) * kGradFields;
-    out[kGradOpacity] = simd::hadd(g_o);
-    out[kGradA] = Scalar(-0.5) * simd::hadd(g_a);
-    out[kGradB] = -simd::hadd(g_b);
-    out[kGradC] = Scalar(-0.5) * simd::hadd(g_c);
-    out[kGradMx] = simd::hadd(g_mx);
-    out[kGradMy] = simd::hadd(g_my);
-    out[kGradR] = simd::hadd(g_r);
-    out[kGradG] = simd::hadd(g_g);
-    out[kGradBl] = simd::hadd(g_bl);
-    out[kGradZ] = simd::hadd(g_z);
+    // The conic's power factors (-1/2, -1, -1/2) are applied once per vector.
+    const B rows[kGradFields] = {g_o, B(Scalar(-0.5)) * g_a, -g_b, B(Scalar(-0.5)) * g_c, g_mx, g_my, g_r, g_g, g_bl, g_z};
+    simd::hadd_rows(rows, kGradFields, pair_grad + std::size_t(slot[j]) * kGradFields);
   }
 }
 

@@ -56,9 +56,8 @@ struct SsimWorkspace {
   bool forward_done = false;
   SsimParams params;                        // params of the last forward pass
   std::vector<Scalar> window;               // [window] normalised 1D weights
-  std::vector<Scalar> horizontal;           // [H][5C][W] row-filtered stats (backward: [H][3C][W])
   std::vector<Scalar> dmaps;                // [H][3C][W] d mean-SSIM / d(mu_x, G*x^2, G*xy)
-  std::vector<std::vector<Scalar>> rows;    // [worker][(5C + 1) * W] scratch rows
+  std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
   std::vector<double> row_sums;             // [H] per-row partial sums
 };
 
@@ -122,33 +121,58 @@ void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, 
   }
 }
 
-// out = sum_d w[r + d] plane[y + d] over the rows that exist (zero padding).
-template <class Scalar>
-void filter_column(const Scalar* plane, Scalar* __restrict out, int y, int height, std::size_t row_len,
-                   const Scalar* w, int r) {
-  const Scalar* __restrict centre = plane + std::size_t(y) * row_len;
-  const Scalar wc = w[r];
-  for (std::size_t i = 0; i < row_len; ++i) out[i] = wc * centre[i];
-  for (int d = 1; d <= r; ++d) {
-    const bool up = y - d >= 0, down = y + d < height;
-    const Scalar wd = w[r + d];
-    if (up && down) {
-      const Scalar* __restrict a = plane + std::size_t(y - d) * row_len;
-      const Scalar* __restrict b = plane + std::size_t(y + d) * row_len;
-      for (std::size_t i = 0; i < row_len; ++i) out[i] += wd * (a[i] + b[i]);
-    } else if (up || down) {
-      const Scalar* __restrict a = plane + std::size_t(up ? y - d : y + d) * row_len;
-      for (std::size_t i = 0; i < row_len; ++i) out[i] += wd * a[i];
+// The 2D filter over bands of rows, without materialising the row-filtered
+// image: each worker keeps the last 2r + 1 row-filtered rows of its band in a
+// ring (a few hundred KB, cache resident) and filters along columns from there.
+// A full-image intermediate made the loss memory bound (it scaled 1.3x on two
+// cores). Bands overlap by r rows on each side, which are filtered twice.
+//   source(y, scratch) -> pointer to row y's `planes` x W values (may fill scratch)
+//   sink(y, filtered, scratch) gets row y filtered in 2D and a W-value scratch.
+// Each output row is the same sum in the same order whatever the banding, so the
+// results do not depend on the thread count.
+template <class Scalar, class Source, class Sink>
+void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
+                    Source&& source, Sink&& sink) {
+  const std::size_t len = std::size_t(planes) * std::size_t(W);
+  const int win = 2 * r + 1;
+  const std::size_t need = std::size_t(win + 2) * len + std::size_t(W);
+  if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
+  for (auto& b : ws.rows)
+    if (b.size() < need) b.resize(need);
+  // Bands of at least 64 rows keep the overlap small; 4 per thread balance the load.
+  const int bands = std::max(1, std::min(4 * threads, H / 64));
+  parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
+    Scalar* ring = ws.rows[std::size_t(worker)].data();
+    Scalar* raw = ring + std::size_t(win) * len;
+    Scalar* col = raw + len;
+    Scalar* scratch = col + len;
+    const int y0 = int(std::size_t(H) * band / std::size_t(bands));
+    const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
+    auto ring_row = [&](int y) { return ring + std::size_t(y % win) * len; };
+    int next = std::max(0, y0 - r);  // next source row to filter into the ring
+    const Scalar wc = w[r];
+    for (int y = y0; y < y1; ++y) {
+      for (; next <= std::min(H - 1, y + r); ++next) filter_row(source(next, raw), ring_row(next), W, planes, w, r);
+      // Along the column: sum_d w[r + d] row[y + d] over the rows that exist.
+      const Scalar* __restrict centre = ring_row(y);
+      for (std::size_t i = 0; i < len; ++i) col[i] = wc * centre[i];
+      for (int d = 1; d <= r; ++d) {
+        const bool up = y - d >= 0, down = y + d < H;
+        const Scalar wd = w[r + d];
+        if (up && down) {
+          const Scalar* __restrict a = ring_row(y - d);
+          const Scalar* __restrict b = ring_row(y + d);
+          for (std::size_t i = 0; i < len; ++i) col[i] += wd * (a[i] + b[i]);
+        } else if (up || down) {
+          const Scalar* __restrict a = ring_row(up ? y - d : y + d);
+          for (std::size_t i = 0; i < len; ++i) col[i] += wd * a[i];
+        }
+      }
+      sink(y, col, scratch);
     }
-  }
+  });
 }
 
-template <class Scalar>
-void prepare_rows(SsimWorkspace<Scalar>& ws, int workers, std::size_t len) {
-  if (ws.rows.size() < std::size_t(workers)) ws.rows.resize(std::size_t(workers));
-  for (auto& r : ws.rows)
-    if (r.size() < len) r.resize(len);
-}
 
 inline double sum_in_order(const std::vector<double>& v, std::size_t n) {
   double s = 0;
@@ -217,14 +241,11 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   check_images("ssim", pred, target);
   const int W = pred.width, H = pred.height, C = pred.channels;
   const int S5 = 5 * C, S3 = 3 * C;
-  const std::size_t row5 = std::size_t(W) * S5;
   threads = resolve_threads(threads);
 
   gaussian_window<Scalar>(params, ws.window);
-  ws.horizontal.resize(row5 * std::size_t(H));
   ws.dmaps.resize(std::size_t(W) * S3 * std::size_t(H));
   ws.row_sums.resize(std::size_t(H));
-  prepare_rows(ws, threads, row5 + std::size_t(W));
   ws.width = W;
   ws.height = H;
   ws.channels = C;
@@ -236,13 +257,13 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
   const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
 
-  // Pass 1: per row, the five per-pixel products (planes x, y, x^2, y^2, xy, each
-  // C channels), filtered along the row.
+  // Per row: the five per-pixel products (planes x, y, x^2, y^2, xy, each C
+  // channels), filtered in 2D, then the SSIM map and its derivatives with respect
+  // to mu_x, G*x^2 and G*xy (already divided by the pixel-channel count).
   const std::size_t Wz = std::size_t(W);
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
-    Scalar* prod = ws.rows[std::size_t(worker)].data();
-    const Scalar* x = pred.data.data() + y * Wz * std::size_t(C);
-    const Scalar* t = target.data.data() + y * Wz * std::size_t(C);
+  auto products = [&](int y, Scalar* prod) -> const Scalar* {
+    const Scalar* x = pred.data.data() + std::size_t(y) * Wz * std::size_t(C);
+    const Scalar* t = target.data.data() + std::size_t(y) * Wz * std::size_t(C);
     for (int c = 0; c < C; ++c) {
       Scalar* px_ = prod + std::size_t(c) * Wz;
       Scalar* py_ = prod + std::size_t(C + c) * Wz;
@@ -258,14 +279,10 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
         pxy[px] = a * b;
       }
     }
-    filter_row(prod, ws.horizontal.data() + y * row5, W, S5, w, r);
-  });
-
-  // Pass 2: per row, filter along columns, then the SSIM map and its derivatives with
-  // respect to mu_x, G*x^2 and G*xy (already divided by the pixel-channel count).
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
-    Scalar* m = ws.rows[std::size_t(worker)].data();
-    filter_column(ws.horizontal.data(), m, int(y), H, row5, w, r);
+    return prod;
+  };
+  auto ssim_row = [&](int yi, const Scalar* m, Scalar* vals) {
+    const std::size_t y = std::size_t(yi);
     Scalar* dm = ws.dmaps.data() + y * Wz * std::size_t(S3);
     double row_sum = 0;
     for (int c = 0; c < C; ++c) {
@@ -277,7 +294,6 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
       Scalar* __restrict d0 = dm + std::size_t(c) * Wz;
       Scalar* __restrict d1 = dm + std::size_t(C + c) * Wz;
       Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * Wz;
-      Scalar* __restrict vals = m + std::size_t(S5) * Wz;  // SSIM of each pixel, summed below
       // Explicit SIMD: GCC leaves this loop scalar ("no vectype"), and it was
       // most of the loss's time.
       auto ssim_at = [&](auto lanes, std::size_t px) {
@@ -308,7 +324,8 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
       row_sum += double(plane_sum);
     }
     ws.row_sums[y] = row_sum;
-  });
+  };
+  filter_2d_rows(ws, W, H, S5, w, r, threads, products, ssim_row);
 
   const double total = sum_in_order(ws.row_sums, std::size_t(H));
   ws.forward_done = true;
@@ -337,18 +354,14 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
   const int S3 = 3 * C;
   const std::size_t row3 = std::size_t(W) * S3;
   threads = resolve_threads(threads);
-  prepare_rows(ws, threads, std::size_t(W) * 5 * C);
   const Scalar* w = ws.window.data();
   const int r = ws.params.window / 2;
 
   // The forward maps are windowed sums, so the adjoint filters the derivative maps with
-  // the same (symmetric, zero-padded) window: rows first, then columns.
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
-    filter_row(ws.dmaps.data() + y * row3, ws.horizontal.data() + y * row3, W, S3, w, r);
-  });
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int worker) {
-    Scalar* f = ws.rows[std::size_t(worker)].data();
-    filter_column(ws.horizontal.data(), f, int(y), H, row3, w, r);
+  // the same (symmetric, zero-padded) window.
+  auto dmap_row = [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; };
+  auto gradient_row = [&](int yi, const Scalar* f, Scalar*) {
+    const std::size_t y = std::size_t(yi);
     const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
     const Scalar* t = target.data.data() + y * std::size_t(W) * C;
     Scalar* v = v_pred.data.data() + y * std::size_t(W) * C;
@@ -363,7 +376,8 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
         v[i] = accumulate ? v[i] + g : g;
       }
     }
-  });
+  };
+  filter_2d_rows(ws, W, H, S3, w, r, threads, dmap_row, gradient_row);
 }
 
 // Convenience for one-off evaluation (metrics): allocates its own workspace.
