@@ -2,10 +2,13 @@
 
 #include <atomic>
 #include <numeric>
+#include <random>
+#include <vector>
 
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
 
 using namespace orbitforge;
 
@@ -77,4 +80,32 @@ TEST_CASE("image indexing is row-major, channels fastest", "[core][image]") {
   im(2, 1, 1) = 7.f;
   REQUIRE(im.data[(1 * 3 + 2) * 3 + 1] == 7.f);
   REQUIRE_THROWS_AS(Image<float>(-1, 2, 3), Error);
+}
+
+TEMPLATE_TEST_CASE("simd::hadd_rows gives each row's lane sum, in row order", "[core][simd]", float, double) {
+  using B = simd::native_batch<TestType>;
+  constexpr std::size_t N = B::size;
+  std::mt19937 rng(77);
+  std::uniform_real_distribution<double> u(-1, 1);
+  // Counts below, at and across the 16-row blocks of the AVX-512 float path.
+  for (int count : {1, 2, 5, 10, 15, 16, 17, 33}) {
+    std::vector<B> rows;
+    std::vector<double> expected;
+    for (int i = 0; i < count; ++i) {
+      TestType lanes[N];
+      double sum = 0;
+      for (std::size_t l = 0; l < N; ++l) {
+        lanes[l] = TestType(u(rng)) + TestType(10 * i);  // rows differ by far more than round-off
+        sum += double(lanes[l]);
+      }
+      rows.push_back(B::load_unaligned(lanes));
+      expected.push_back(sum);
+    }
+    std::vector<TestType> out(std::size_t(count), TestType(-1e30));
+    simd::hadd_rows(rows.data(), count, out.data());
+    for (int i = 0; i < count; ++i) {
+      INFO("count " << count << " row " << i);
+      CHECK(double(out[std::size_t(i)]) == Approx(expected[std::size_t(i)]).epsilon(1e-5).margin(1e-5));
+    }
+  }
 }
