@@ -22,6 +22,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 #include <vector>
 
@@ -59,7 +60,12 @@ struct alignas(sizeof(Scalar) * 16) SplatRecord {
   Scalar color_r, color_g, color_b;
   Scalar depth;
   Scalar x_lo, x_hi, y_lo, y_hi;
-  Scalar pad_[2];
+  // Below this power, opacity exp(power) < 1/255 for certain (a margin of 1e-4
+  // over log(1 / (255 opacity)) covers the rounding of exp and of the product):
+  // the backward pass skips a chunk's exp when no lane reaches it (in the
+  // forward the extra test cost more than it saved).
+  Scalar min_power;
+  Scalar pad_;
 };
 
 template <class Scalar>
@@ -195,7 +201,10 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       rec.depth = s.depth[i];
       rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
       rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
-      rec.pad_[0] = rec.pad_[1] = Scalar(0);
+      rec.min_power = rec.opacity > Scalar(0)
+                          ? Scalar(-std::log(Scalar(255) * rec.opacity)) - Scalar(1e-4)
+                          : std::numeric_limits<Scalar>::infinity();
+      rec.pad_ = Scalar(0);
       bool finite = true;
       for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
       ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");

@@ -137,6 +137,7 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
       const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
       const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
+      if (!simd::any(inside & (power >= B(G.min_power)))) continue;  // no lane reaches alpha 1/255
       const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
       const B raw = B(G.opacity) * e;
       const B alpha = simd::min(B(Rules::max_alpha()), raw);
