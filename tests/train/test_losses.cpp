@@ -210,6 +210,16 @@ TEST_CASE("combined loss value and gradient", "[train][losses]") {
     CHECK(terms.total == Approx(expect).epsilon(1e-12));
     CHECK(terms.l1 == Approx(l1_loss(x, y)).epsilon(1e-14));
     CHECK(terms.ssim == Approx(reference_ssim(x, y)).epsilon(1e-12));
+    double sq = 0;
+    for (std::size_t i = 0; i < x.data.size(); ++i) sq += (x.data[i] - y.data[i]) * (x.data[i] - y.data[i]);
+    CHECK(terms.mse == Approx(sq / double(x.data.size())).epsilon(1e-12));
+    // Rows are split over threads; the sums must not depend on it.
+    Image<double> v2;
+    SsimWorkspace<double> ws2;
+    const auto t2 = combined_loss(x, y, v2, ws2, 0.2, 3);
+    CHECK(t2.total == terms.total);
+    CHECK(t2.mse == terms.mse);
+    CHECK(v2.data == v.data);
     SsimWorkspace<double> ws_fd;
     Image<double> v_fd;
     check_gradient(x, v, [&](const Image<double>& p) { return combined_loss(p, y, v_fd, ws_fd).total; }, 2e-4);

@@ -59,6 +59,7 @@ struct SsimWorkspace {
   std::vector<Scalar> dmaps;                // [H][3C][W] d mean-SSIM / d(mu_x, G*x^2, G*xy)
   std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
   std::vector<double> row_sums;             // [H] per-row partial sums
+  std::vector<double> abs_rows, sq_rows;    // [H] combined_loss: per-row sums of |d| and d^2
 };
 
 // The components of combined_loss, for progress reports.
@@ -67,6 +68,7 @@ struct LossTerms {
   Scalar total = 0;  // (1 - lambda) l1 + lambda (1 - ssim)
   Scalar l1 = 0;
   Scalar ssim = 0;
+  double mse = 0;    // mean squared error (for PSNR; no gradient)
 };
 
 namespace losses_detail {
@@ -174,6 +176,94 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
 }
 
 
+// Sums of |a - b| and (a - b)^2 over n values, vectorised explicitly (GCC keeps
+// float reductions scalar, and these run on every training step).
+template <class Scalar>
+void error_sums(const Scalar* a, const Scalar* b, std::size_t n, double& abs_sum, double& sq_sum) {
+  using B = simd::native_batch<Scalar>;
+  B sa(Scalar(0)), sq(Scalar(0));
+  std::size_t i = 0;
+  for (; i + B::size <= n; i += B::size) {
+    const B d = B::load_unaligned(a + i) - B::load_unaligned(b + i);
+    sa = sa + simd::abs(d);
+    sq = simd::fma(d, d, sq);
+  }
+  alignas(64) Scalar la[B::size], lq[B::size];
+  sa.store_unaligned(la);
+  sq.store_unaligned(lq);
+  Scalar ta = 0, tq = 0;
+  for (std::size_t l = 0; l < B::size; ++l) {
+    ta += la[l];
+    tq += lq[l];
+  }
+  for (; i < n; ++i) {
+    const Scalar d = a[i] - b[i];
+    ta += std::abs(d);
+    tq += d * d;
+  }
+  abs_sum = double(ta);
+  sq_sum = double(tq);
+}
+
+// v += g sign(a - b) (0 where a == b) over n values, branch-free.
+template <class Scalar>
+void add_sign_gradient(const Scalar* a, const Scalar* b, Scalar* v, std::size_t n, Scalar g) {
+  using B = simd::native_batch<Scalar>;
+  const B zero(Scalar(0)), pos(g), neg(-g);
+  std::size_t i = 0;
+  for (; i + B::size <= n; i += B::size) {
+    const B d = B::load_unaligned(a + i) - B::load_unaligned(b + i);
+    const B s = simd::select(d > zero, pos, simd::select(d < zero, neg, zero));
+    (B::load_unaligned(v + i) + s).store_unaligned(v + i);
+  }
+  for (; i < n; ++i) {
+    const Scalar d = a[i] - b[i];
+    v[i] += d > 0 ? g : (d < 0 ? -g : Scalar(0));
+  }
+}
+
+// The five planar products of one interleaved row (planes x, y, x^2, y^2, xy,
+// each C channels). CC > 0 fixes the channel count at compile time, which lets
+// the compiler vectorise the stride-C loads.
+template <int CC, class Scalar>
+void products_row(const Scalar* __restrict x, const Scalar* __restrict t, Scalar* __restrict prod, std::size_t W,
+                  int channels) {
+  const std::size_t C = CC > 0 ? std::size_t(CC) : std::size_t(channels);
+  for (std::size_t c = 0; c < C; ++c) {
+    Scalar* __restrict px_ = prod + c * W;
+    Scalar* __restrict py_ = prod + (C + c) * W;
+    Scalar* __restrict pxx = prod + (2 * C + c) * W;
+    Scalar* __restrict pyy = prod + (3 * C + c) * W;
+    Scalar* __restrict pxy = prod + (4 * C + c) * W;
+    for (std::size_t px = 0; px < W; ++px) {
+      const Scalar a = x[px * C + c], b = t[px * C + c];
+      px_[px] = a;
+      py_[px] = b;
+      pxx[px] = a * a;
+      pyy[px] = b * b;
+      pxy[px] = a * b;
+    }
+  }
+}
+
+// v (interleaved row) = v_ssim (f0 + 2 x f1 + t f2) per channel from planar f
+// (planes f0, f1, f2, each C channels); added to v when accumulate.
+template <int CC, class Scalar>
+void ssim_gradient_row(const Scalar* __restrict f, const Scalar* __restrict x, const Scalar* __restrict t,
+                       Scalar* __restrict v, std::size_t W, int channels, Scalar v_ssim, bool accumulate) {
+  const std::size_t C = CC > 0 ? std::size_t(CC) : std::size_t(channels);
+  for (std::size_t c = 0; c < C; ++c) {
+    const Scalar* __restrict f0 = f + c * W;
+    const Scalar* __restrict f1 = f + (C + c) * W;
+    const Scalar* __restrict f2 = f + (2 * C + c) * W;
+    for (std::size_t px = 0; px < W; ++px) {
+      const std::size_t i = px * C + c;
+      const Scalar g = v_ssim * (f0[px] + 2 * x[i] * f1[px] + t[i] * f2[px]);
+      v[i] = accumulate ? v[i] + g : g;
+    }
+  }
+}
+
 inline double sum_in_order(const std::vector<double>& v, std::size_t n) {
   double s = 0;
   for (std::size_t i = 0; i < n; ++i) s += v[i];
@@ -264,21 +354,8 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   auto products = [&](int y, Scalar* prod) -> const Scalar* {
     const Scalar* x = pred.data.data() + std::size_t(y) * Wz * std::size_t(C);
     const Scalar* t = target.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    for (int c = 0; c < C; ++c) {
-      Scalar* px_ = prod + std::size_t(c) * Wz;
-      Scalar* py_ = prod + std::size_t(C + c) * Wz;
-      Scalar* pxx = prod + std::size_t(2 * C + c) * Wz;
-      Scalar* pyy = prod + std::size_t(3 * C + c) * Wz;
-      Scalar* pxy = prod + std::size_t(4 * C + c) * Wz;
-      for (std::size_t px = 0; px < Wz; ++px) {
-        const Scalar a = x[px * std::size_t(C) + std::size_t(c)], b = t[px * std::size_t(C) + std::size_t(c)];
-        px_[px] = a;
-        py_[px] = b;
-        pxx[px] = a * a;
-        pyy[px] = b * b;
-        pxy[px] = a * b;
-      }
-    }
+    if (C == 3) products_row<3>(x, t, prod, Wz, C);
+    else products_row<0>(x, t, prod, Wz, C);
     return prod;
   };
   auto ssim_row = [&](int yi, const Scalar* m, Scalar* vals) {
@@ -361,21 +438,12 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
   // the same (symmetric, zero-padded) window.
   auto dmap_row = [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; };
   auto gradient_row = [&](int yi, const Scalar* f, Scalar*) {
-    const std::size_t y = std::size_t(yi);
-    const Scalar* x = pred.data.data() + y * std::size_t(W) * C;
-    const Scalar* t = target.data.data() + y * std::size_t(W) * C;
-    Scalar* v = v_pred.data.data() + y * std::size_t(W) * C;
-    const std::size_t Wz = std::size_t(W);
-    for (int c = 0; c < C; ++c) {
-      const Scalar* f0 = f + std::size_t(c) * Wz;
-      const Scalar* f1 = f + std::size_t(C + c) * Wz;
-      const Scalar* f2 = f + std::size_t(2 * C + c) * Wz;
-      for (std::size_t px = 0; px < Wz; ++px) {
-        const std::size_t i = px * std::size_t(C) + std::size_t(c);
-        const Scalar g = v_ssim * (f0[px] + 2 * x[i] * f1[px] + t[i] * f2[px]);
-        v[i] = accumulate ? v[i] + g : g;
-      }
-    }
+    const std::size_t at = std::size_t(yi) * std::size_t(W) * std::size_t(C);
+    const Scalar* x = pred.data.data() + at;
+    const Scalar* t = target.data.data() + at;
+    Scalar* v = v_pred.data.data() + at;
+    if (C == 3) ssim_gradient_row<3>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
+    else ssim_gradient_row<0>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
   };
   filter_2d_rows(ws, W, H, S3, w, r, threads, dmap_row, gradient_row);
 }
@@ -403,17 +471,35 @@ template <class Scalar>
 LossTerms<Scalar> combined_loss(const Image<Scalar>& pred, const Image<Scalar>& target, Image<Scalar>& v_pred,
                                 SsimWorkspace<Scalar>& ws, const CombinedLossParams& params = {},
                                 int threads = 0) {
+  using namespace losses_detail;
   ensure(params.lambda >= 0 && params.lambda <= 1, "combined_loss: lambda must be in [0, 1], got ",
          params.lambda);
+  check_images("combined_loss", pred, target);
+  threads = resolve_threads(threads);
   const Scalar lambda = Scalar(params.lambda);
+  const int H = pred.height;
+  const std::size_t row = std::size_t(pred.width) * std::size_t(pred.channels);
+  const std::size_t n = row * std::size_t(H);
+  // L1 and squared error per row (in parallel; rows added in order: the same for
+  // any thread count).
+  ws.abs_rows.resize(std::size_t(H));
+  ws.sq_rows.resize(std::size_t(H));
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
+    error_sums(pred.data.data() + y * row, target.data.data() + y * row, row, ws.abs_rows[y], ws.sq_rows[y]);
+  });
   LossTerms<Scalar> out;
-  out.l1 = l1_loss(pred, target);
+  out.l1 = Scalar(sum_in_order(ws.abs_rows, std::size_t(H)) / double(n));
+  out.mse = sum_in_order(ws.sq_rows, std::size_t(H)) / double(n);
   out.ssim = ssim(pred, target, ws, params.ssim, threads);
   out.total = (1 - lambda) * out.l1 + lambda * (1 - out.ssim);
   ensure(std::isfinite(double(out.total)), "combined_loss: loss is not finite (L1 ", out.l1, ", SSIM ",
          out.ssim, "): the prediction or the target holds NaN or infinity");
   ssim_vjp(pred, target, -lambda, ws, v_pred, false, threads);
-  l1_loss_vjp(pred, target, 1 - lambda, v_pred, true);
+  // + (1 - lambda) d L1 / d pred (l1_loss_vjp's rule, over rows in parallel).
+  const Scalar g = (1 - lambda) / Scalar(n);
+  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
+    add_sign_gradient(pred.data.data() + y * row, target.data.data() + y * row, v_pred.data.data() + y * row, row, g);
+  });
   return out;
 }
 

@@ -253,7 +253,7 @@ class Trainer {
       Adam<Scalar>::update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
                   v_field_.size(), threads);
     }
-    last_.psnr = frame_psnr(out->color, frame.image);
+    last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
     // Adam on the Gaussians.
     step_group(g_means_, scene_.means, grad->means);
@@ -429,16 +429,6 @@ class Trainer {
   int rest_width() const { return std::max(1, 3 * (sh_coefficient_count(params_.max_sh_degree) - 1)); }
   bool white_background() const {
     return params_.background[0] >= 1 && params_.background[1] >= 1 && params_.background[2] >= 1;
-  }
-
-  static double frame_psnr(const Image<Scalar>& a, const Image<Scalar>& b) {
-    double s = 0;
-    for (std::size_t i = 0; i < a.data.size(); ++i) {
-      const double d = double(a.data[i]) - double(b.data[i]);
-      s += d * d;
-    }
-    const double mse = s / double(std::max<std::size_t>(1, a.data.size()));
-    return mse > 0 ? -10.0 * std::log10(mse) : 100.0;
   }
 
   void update_learning_rates(int it) {
