@@ -44,7 +44,8 @@ namespace {
 const char* kUsage =
     "usage: reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]\n"
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
-    "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH] --out DIR\n";
+    "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH]\n"
+    "                   [--min-densify-interval N] --out DIR\n";
 
 using cli::UsageError;
 
@@ -52,6 +53,7 @@ struct Args {
   std::string colmap, frames, out;
   int holdout_every = 0, width = 512, height = 512, iters = 30000, median_samples = 128, threads = 0;
   int eval_every = 0;
+  int min_densify_interval = 1;  // floor of the budget-scaled densification interval (TrainParams)
   unsigned seed = 0;
   double minutes = 0;
   bool deformable = false;
@@ -95,6 +97,7 @@ Args parse(int argc, char** argv) {
     else if (f == "--threads") a.threads = int(to_long(f, value(), 0));
     else if (f == "--eval-every") a.eval_every = int(to_long(f, value(), 1));
     else if (f == "--seed") a.seed = unsigned(to_long(f, value(), 0));
+    else if (f == "--min-densify-interval") a.min_densify_interval = int(to_long(f, value(), 1));
     else if (f == "--minutes") {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
@@ -200,6 +203,7 @@ int run(const Args& a) {
   p.background = a.background;
   p.deformable = a.deformable;
   p.field = a.field;
+  p.min_densify_interval = a.min_densify_interval;
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;

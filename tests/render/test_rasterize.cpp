@@ -1,6 +1,9 @@
 // Binning + forward rasterization against the plain per-pixel reference.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
+#include <random>
+
 #include "orbitforge/splat/bin.hpp"
 #include "orbitforge/splat/rasterize.hpp"
 #include "render/reference_renderer.hpp"
@@ -224,5 +227,32 @@ TEST_CASE("binning on several threads gives the same lists as on one", "[render]
     std::vector<char> seen(many.pairs(), 0);
     for (auto e : many.entry_slot) seen[e] = 1;
     CHECK(std::count(seen.begin(), seen.end(), 1) == std::ptrdiff_t(many.pairs()));
+  }
+}
+
+TEST_CASE("the depth radix sort is the stable sort for any block count", "[render]") {
+  // Several 16k-key blocks, many equal keys (ties keep index order), negative and
+  // positive depths, and keys that differ only in their high bytes.
+  std::mt19937 rng(21);
+  std::uniform_int_distribution<int> pick(0, 5000);
+  const std::size_t n = 70000;
+  std::vector<std::uint32_t> keys0(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float depth = (pick(rng) % 7 == 0 ? -1.0f : 1.0f) * float(pick(rng)) * (i % 3 == 0 ? 1e3f : 1e-2f);
+    keys0[i] = detail::sortable_key<std::uint32_t>(depth);
+  }
+  std::vector<std::int32_t> expected(n);
+  for (std::size_t i = 0; i < n; ++i) expected[i] = std::int32_t(i);
+  std::stable_sort(expected.begin(), expected.end(), [&](std::int32_t a, std::int32_t b) {
+    return keys0[std::size_t(a)] < keys0[std::size_t(b)];
+  });
+  for (int threads : {1, 2, 3, 4}) {
+    INFO("threads " << threads);
+    std::vector<std::uint32_t> keys = keys0, keys_tmp, hist;
+    std::vector<std::int32_t> idx(n), idx_tmp;
+    for (std::size_t i = 0; i < n; ++i) idx[i] = std::int32_t(i);
+    detail::radix_sort_stable(keys, idx, keys_tmp, idx_tmp, hist, threads);
+    CHECK(idx == expected);
+    CHECK(std::is_sorted(keys.begin(), keys.end()));
   }
 }

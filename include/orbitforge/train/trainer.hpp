@@ -506,6 +506,11 @@ class Trainer {
   void densify_now(bool size_prune) {
     const DensifyPlan plan =
         densify_and_prune(scene_, stats_, params_.densify_params, extent_, size_prune, rng_);
+    // Nothing left to train: say so rather than carry on rendering the background.
+    ensure(scene_.size() > 0, "Trainer: densification at iteration ", iteration_,
+           " pruned every Gaussian (schedule densifying every ", schedule_.densify.densify_interval,
+           " iterations, opacity reset every ", schedule_.densify.opacity_reset_interval,
+           "; check the background colour against the frames, or raise TrainParams::min_densify_interval)");
     // New row order: kept old rows, then appended rows (zero moments, as 3DGS).
     std::vector<std::int64_t> source;
     source.reserve(plan.new_size());
