@@ -4,6 +4,7 @@
 // The time column is per pass over the 16 frames; ms_per_step is per step.
 // Densification is off so the scene keeps 50k Gaussians. Process CPU time is
 // measured too (MeasureProcessCPUTime), for loaded machines where wall time is noisy.
+// The other counters split ms_per_step into its phases (from TrainProgress).
 //
 // Targets (issue 4): static < 60 ms on 2 cores; deformable < 2x static.
 #include <benchmark/benchmark.h>
@@ -76,13 +77,31 @@ void run(benchmark::State& state, bool deformable) {
   // the view); ms_per_step is the figure to compare with the targets.
   const double steps = double(fx.frames.size());
   double ms = 0;
+  // Phases (ms per step): project, sort + bin, rasterize, loss, rasterizer
+  // backward, projection backward, deformation field, Adam.
+  double ph[8] = {};
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
-    for (std::size_t i = 0; i < fx.frames.size(); ++i) benchmark::DoNotOptimize(t.step().loss);
+    for (std::size_t i = 0; i < fx.frames.size(); ++i) {
+      const TrainProgress& s = t.step();
+      benchmark::DoNotOptimize(s.loss);
+      ph[0] += s.render.project_ms;
+      ph[1] += s.render.sort_ms + s.render.bin_ms;
+      ph[2] += s.render.raster_ms;
+      ph[3] += s.loss_ms;
+      ph[4] += s.render.backward_raster_ms;
+      ph[5] += s.render.backward_project_ms;
+      ph[6] += s.field_ms;
+      ph[7] += s.adam_ms;
+    }
     ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   }
+  const double n = double(state.iterations()) * steps;
   state.counters["gaussians"] = double(t.scene().size());
-  state.counters["ms_per_step"] = ms / (double(state.iterations()) * steps);
+  state.counters["ms_per_step"] = ms / n;
+  const char* names[8] = {"project", "sort_bin", "raster", "loss", "raster_bwd", "project_bwd", "field", "adam"};
+  for (int k = 0; k < 8; ++k)
+    if (k != 6 || deformable) state.counters[names[k]] = ph[k] / n;
 }
 
 void BM_TrainStepStatic512_50k(benchmark::State& state) { run(state, false); }

@@ -124,6 +124,24 @@ TEST_CASE("init_from_points: colours, opacity, scales", "[train][init]") {
   CHECK_THROWS_AS(init_from_points(pts, std::vector<double>(3)), Error);
 }
 
+// The phase split of an iteration's time: non-negative, within the iteration's
+// wall time, the render's own breakdown filled in, the field only when deforming.
+static void check_phases(const TrainProgress& p) {
+  const double parts[] = {p.render_ms, p.loss_ms, p.backward_ms, p.field_ms, p.adam_ms, p.densify_ms};
+  double sum = 0;
+  for (double v : parts) {
+    CHECK(v >= 0);
+    sum += v;
+  }
+  CHECK(sum <= 1000 * p.seconds_per_iteration + 1e-6);
+  CHECK(p.render_ms > 0);
+  CHECK(p.render.total_ms > 0);
+  CHECK(p.render.total_ms <= p.render_ms + 1e-6);
+  CHECK(p.render.backward_raster_ms + p.render.backward_project_ms <= p.backward_ms + 1e-6);
+  if (!p.deforming) CHECK(p.field_ms == 0);
+  else CHECK(p.field_ms > 0);
+}
+
 TEMPLATE_TEST_CASE("training a tiny scene lowers the loss", "[train][trainer]", float, double) {
   using S = TestType;
   const auto frames = tiny_frames<S>();
@@ -135,6 +153,7 @@ TEMPLATE_TEST_CASE("training a tiny scene lowers the loss", "[train][trainer]", 
   t.train(iters, [&](const TrainProgress& p) {
     REQUIRE(std::isfinite(p.loss));
     CHECK(p.gaussians > 0);
+    check_phases(p);
     if (p.iteration <= window) {
       first += p.loss / window;
       psnr_first += p.psnr / window;
@@ -249,11 +268,15 @@ TEST_CASE("deformable training: warm-up, then the field learns; checkpoint round
   Trainer<S> t(frames, tiny_init(frames, 150), p);
   REQUIRE(t.schedule().warmup == 40);
   const std::vector<S> w0 = t.field()->parameters();
-  t.train(40, [](const TrainProgress& pr) { CHECK_FALSE(pr.deforming); });
+  t.train(40, [](const TrainProgress& pr) {
+    CHECK_FALSE(pr.deforming);
+    check_phases(pr);
+  });
   CHECK(differences(t.field()->parameters(), w0) == 0);  // untouched during warm-up
   t.train(60, [](const TrainProgress& pr) {
     CHECK(pr.deforming);
     CHECK(std::isfinite(pr.loss));
+    check_phases(pr);
   });
   CHECK(differences(t.field()->parameters(), w0) > 0);
   std::stringstream ss(std::ios::in | std::ios::out | std::ios::binary);

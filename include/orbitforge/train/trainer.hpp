@@ -117,6 +117,11 @@ struct TrainProgress {
   double seconds_per_iteration = 0;  // wall time of this iteration
   double elapsed_seconds = 0;        // wall time of all iterations trained by this object
   std::size_t frame = 0;
+  // Where this iteration's wall time went (ms). render: project + sort/bin +
+  // rasterize; backward: rasterizer and projection backward; field: the
+  // deformation network forward, backward and its Adam step (0 when not deforming).
+  double render_ms = 0, loss_ms = 0, backward_ms = 0, field_ms = 0, adam_ms = 0, densify_ms = 0;
+  RenderStats render;  // the renderer's own breakdown of this iteration's render and backward
 };
 
 // Schedules resolved for a budget.
@@ -228,19 +233,35 @@ class Trainer {
     const GaussianSceneGrad<Scalar>* grad = nullptr;
     const RenderOutput<Scalar>* out = nullptr;
     LossTerms<Scalar> loss;
+    auto lap = [last = clock::now()]() mutable {
+      const auto now = clock::now();
+      const double m = std::chrono::duration<double, std::milli>(now - last).count();
+      last = now;
+      return m;
+    };
+    double field_ms = 0;
     if (!deforming) {
       const SceneView<Scalar> view(scene_);
+      lap();
       out = &renderer_.render(view, frame.camera);
+      last_.render_ms = lap();
       loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
+      last_.loss_ms = lap();
       grad = &renderer_.backward(view, frame.camera, v_color_);
+      last_.backward_ms = lap();
     } else {
       const std::size_t n = scene_.size();
       const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
+      lap();
       field_->evaluate(means, frame.time, field_ws_, offsets_, threads);
+      field_ms = lap();
       const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data());
       out = &renderer_.render(view, frame.camera);
+      last_.render_ms = lap();
       loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
+      last_.loss_ms = lap();
       const GaussianSceneGrad<Scalar>& vg = renderer_.backward(view, frame.camera, v_color_);
+      last_.backward_ms = lap();
       // d loss / d offsets = the gradients w.r.t. the deformed view's parameters.
       v_offsets_.resize(Eigen::Index(n));
       v_offsets_.dx = Eigen::Map<const Matrix3X<Scalar>>(vg.means.data(), 3, Eigen::Index(n));
@@ -252,7 +273,10 @@ class Trainer {
       grad = &base_grad_;
       Adam<Scalar>::update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
                   v_field_.size(), threads);
+      field_ms += lap();
     }
+    last_.field_ms = field_ms;
+    last_.render = out->frame;
     last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
     // Adam on the Gaussians.
@@ -261,6 +285,7 @@ class Trainer {
     step_group(g_scale_, scene_.log_scales, grad->log_scales);
     step_group(g_opacity_, scene_.opacity_logits, grad->opacity_logits);
     step_sh(grad->sh);
+    last_.adam_ms = lap();
 
     // Adaptive density control.
     const DensifySchedule& ds = schedule_.densify;
@@ -269,6 +294,7 @@ class Trainer {
       if (ds.densifies_at(it)) densify_now(ds.size_prune_at(it));
       if (ds.resets_opacity_at(it, white_background())) reset_opacities();
     }
+    last_.densify_ms = lap();
 
     const double secs = std::chrono::duration<double>(clock::now() - t0).count();
     elapsed_ += secs;
