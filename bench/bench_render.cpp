@@ -1,6 +1,6 @@
 // Renderer speed: forward and backward at 256x256, 512x512 and 896x512 with 10k,
-// 100k and 300k Gaussians, 1 and 2 threads, float; plus fast_exp's speed and its
-// error against the exact path.
+// 100k and 300k Gaussians, 1 and 2 threads, float; plus 3-sigma rects against the
+// opacity-aware ones.
 //
 // Scenes are random but shaped like real ones: Gaussians in a box in front of the
 // camera, anisotropic, opacities spread over (0, 1), SH degree 3, sized so that
@@ -80,14 +80,13 @@ void set_counters(benchmark::State& state, const RenderStats& st, int w, int h) 
   state.counters["fwd_ns_contrib"] = st.raster_ms * 1e6 / double(std::max<std::uint64_t>(1, st.contributions));
 }
 
-// Args: width, height, gaussians, threads, fast_exp, tight_extents
+// Args: width, height, gaussians, threads, tight_extents
 void BM_Forward(benchmark::State& state) {
   const int w = int(state.range(0)), h = int(state.range(1));
   const auto& s = scene(std::size_t(state.range(2)));
   RenderParams<float> p;
   p.threads = int(state.range(3));
-  p.fast_exp = state.range(4) != 0;
-  p.tight_extents = state.range(5) != 0;
+  p.tight_extents = state.range(4) != 0;
   Renderer<float> r(p);
   const auto cam = camera(w, h);
   r.render(SceneView<float>(s), cam);  // first frame allocates
@@ -112,20 +111,6 @@ void BM_Forward(benchmark::State& state) {
   set_counters(state, sum, w, h);
   state.counters["main_thread_cpu_ms"] = cpu * k;
   state.counters["tile_entries"] = double(sum.tile_entries);
-  if (p.fast_exp) {
-    // Error of the fast path against the exact one on this frame.
-    Renderer<float> exact(RenderParams<float>{});
-    const auto& a = exact.render(SceneView<float>(s), cam);
-    const auto& b = r.render(SceneView<float>(s), cam);
-    double m = 0, mean = 0;
-    for (std::size_t i = 0; i < a.color.data.size(); ++i) {
-      const double d = std::abs(double(a.color.data[i]) - double(b.color.data[i]));
-      m = std::max(m, d);
-      mean += d;
-    }
-    state.counters["max_abs_err"] = m;
-    state.counters["mean_abs_err"] = mean / double(a.color.data.size());
-  }
 }
 
 // Args: width, height, gaussians, threads. dL/dcolour = 1 everywhere plus alpha and depth terms.
@@ -154,7 +139,7 @@ void BM_Backward(benchmark::State& state) {
 }
 
 // The per-pixel kernels alone, one thread, timed in thread CPU time.
-// Args: width, height, gaussians, fast_exp.
+// Args: width, height, gaussians.
 void BM_RasterKernels(benchmark::State& state) {
   const int w = int(state.range(0)), h = int(state.range(1));
   const auto& s = scene(std::size_t(state.range(2)));
@@ -166,7 +151,6 @@ void BM_RasterKernels(benchmark::State& state) {
   RasterGradOutput<float> grad;
   RasterParams<float> rp;
   rp.threads = 1;
-  rp.fast_exp = state.range(3) != 0;
   Imagef v_color(w, h, 3, 1.f), v_alpha(w, h, 1, 0.5f), v_depth(w, h, 1, 0.01f);
   bin_splats(splats, w, h, 16, bins);  // warm-up: the first frame allocates
   rasterize(bins, rp, out, ws);
@@ -192,33 +176,29 @@ void BM_RasterKernels(benchmark::State& state) {
   state.counters["bwd_ns_contrib"] = bwd * k * 1e6 / c;
 }
 
-void sizes(benchmark::internal::Benchmark* b, bool with_fast) {
+void sizes(benchmark::internal::Benchmark* b, bool with_extents) {
   for (auto wh : {std::pair<int, int>{256, 256}, {512, 512}, {896, 512}})
     for (int n : {10000, 100000, 300000})
       for (int threads : {1, 2}) {
-        if (with_fast) b->Args({wh.first, wh.second, n, threads, 0, 1});
+        if (with_extents) b->Args({wh.first, wh.second, n, threads, 1});
         else b->Args({wh.first, wh.second, n, threads});
       }
-  if (with_fast) {
-    b->Args({512, 512, 100000, 1, 1, 1});  // fast exp
-    b->Args({512, 512, 100000, 1, 0, 0});  // 3-sigma rects instead of opacity-aware ones
-  }
+  if (with_extents) b->Args({512, 512, 100000, 1, 0});  // 3-sigma rects instead of opacity-aware ones
 }
 
 }  // namespace
 
 BENCHMARK(BM_Forward)
-    ->ArgNames({"w", "h", "n", "threads", "fast", "tight"})
+    ->ArgNames({"w", "h", "n", "threads", "tight"})
     ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, true); })
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.3);
 BENCHMARK(BM_RasterKernels)
-    ->ArgNames({"w", "h", "n", "fast"})
-    ->Args({256, 256, 10000, 0})
-    ->Args({512, 512, 100000, 0})
-    ->Args({512, 512, 100000, 1})
-    ->Args({896, 512, 300000, 0})
+    ->ArgNames({"w", "h", "n"})
+    ->Args({256, 256, 10000})
+    ->Args({512, 512, 100000})
+    ->Args({896, 512, 300000})
     ->Unit(benchmark::kMillisecond)
     ->MinTime(0.3);
 BENCHMARK(BM_Backward)

@@ -1,6 +1,8 @@
 #include <catch2/catch.hpp>
 
 #include <atomic>
+#include <cmath>
+#include <limits>
 #include <numeric>
 #include <random>
 #include <vector>
@@ -108,4 +110,46 @@ TEMPLATE_TEST_CASE("simd::hadd_rows gives each row's lane sum, in row order", "[
       CHECK(double(out[std::size_t(i)]) == Approx(expected[std::size_t(i)]).epsilon(1e-5).margin(1e-5));
     }
   }
+}
+
+TEMPLATE_TEST_CASE("simd::exp2_nonpositive is within 2 ulp of 2^x, the same on every path", "[core][simd]", float,
+                   double) {
+  using T = TestType;
+  using B = simd::native_batch<T>;
+  using S = simd::scalar_batch<T>;
+  constexpr std::size_t N = B::size;
+  const double ulp = double(std::numeric_limits<T>::epsilon());
+  const double floor = std::is_same<T, float>::value ? -125 : -1021;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(floor, 0);
+  std::vector<T> xs;
+  for (int i = 0; i < 200000; ++i) xs.push_back(T(u(rng)));
+  // Near 0 and near the integers, where f = x - round(x) is +-1/2.
+  for (int i = 0; i <= 20000; ++i) xs.push_back(T(-1e-3 * i));
+  for (int n = 0; n < 30; ++n)
+    for (double d : {-0.5, -0.4999999, -0.5000001, 0.0})
+      if (n + d >= 0) xs.push_back(T(-(n + d)));
+  while (xs.size() % N) xs.push_back(T(0));
+  double worst = 0;
+  for (std::size_t i = 0; i < xs.size(); i += N) {
+    T out[N];
+    simd::exp2_nonpositive(B::load_unaligned(&xs[i])).store_unaligned(out);
+    for (std::size_t l = 0; l < N; ++l) {
+      const T x = xs[i + l];
+      const long double exact = std::exp2l((long double)x);
+      const double rel = double(std::fabs(((long double)out[l] - exact) / exact));
+      worst = std::max(worst, rel);
+      INFO("x = " << x);
+      REQUIRE(rel <= 2 * ulp);
+      REQUIRE(out[l] == simd::exp2_nonpositive(S(x)).v);  // scalar kernels give the same bits
+    }
+  }
+  INFO("worst relative error " << worst / ulp << " ulp");
+  CHECK(worst > 0);
+  CHECK(simd::exp2_nonpositive(S(T(0))).v == Approx(1).epsilon(2 * ulp));
+  // Below the floor: 2^floor, tiny but normal and finite.
+  const T tiny = simd::exp2_nonpositive(S(T(-5000))).v;
+  CHECK(tiny > 0);
+  CHECK(std::isnormal(tiny));
+  CHECK(double(tiny) == Approx(std::exp2(floor)));
 }

@@ -55,13 +55,16 @@ struct TileGrid {
 template <class Scalar>
 struct alignas(sizeof(Scalar) * 16) SplatRecord {
   Scalar mean_x, mean_y;
-  Scalar conic_a, conic_b, conic_c;
+  // The Gaussian's power in base 2, p2 = pxx dx^2 + pxy dx dy + pyy dy^2 with
+  // opacity 2^p2 = opacity exp(power): the conic (a, b, c) times -log2(e) / 2,
+  // -log2(e), -log2(e) / 2. Base 2 saves the exp's range reduction.
+  Scalar pxx, pxy, pyy;
   Scalar opacity;
   Scalar color_r, color_g, color_b;
   Scalar depth;
   Scalar x_lo, x_hi, y_lo, y_hi;
-  // Below this power, opacity exp(power) < 1/255 for certain (a lower bound of
-  // log(1 / (255 opacity)), see detail::alpha_power_floor):
+  // Below this p2, opacity 2^p2 < 1/255 for certain (a lower bound of
+  // log2(1 / (255 opacity)), see detail::alpha_power_floor):
   // the backward pass skips a chunk's exp when no lane reaches it (in the
   // forward the extra test cost more than it saved).
   Scalar min_power;
@@ -102,8 +105,8 @@ struct BinWorkspace {
 
 namespace detail {
 
-// A lower bound of log(1 / (255 opacity)): powers below it give opacity exp(power)
-// < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
+// A lower bound of log2(1 / (255 opacity)): base-2 powers below it give
+// opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
 // x = 255 opacity = m 2^e, m in [1, 2), log2 x <= e + (m - 1) + 0.0861 (the
 // largest gap between log2 m and its chord); 1e-4 more covers rounding.
 template <class Scalar>
@@ -112,8 +115,12 @@ inline Scalar alpha_power_floor(Scalar opacity) {
   int e = 0;
   const Scalar m = Scalar(2) * std::frexp(Scalar(255) * opacity, &e);  // in [1, 2)
   const Scalar log2_upper = Scalar(e - 1) + (m - Scalar(1)) + Scalar(0.0861);
-  return -log2_upper * Scalar(0.69314718055994531) - Scalar(1e-4);
+  return -log2_upper - Scalar(1e-4);
 }
+
+// exp(power) = 2^(power log2(e)): the conic's coefficients in base 2.
+template <class Scalar>
+constexpr Scalar kHalfLog2e = Scalar(0.72134752044448170368);
 
 // Order-preserving map from an IEEE float to an unsigned key (negative values
 // flip all bits, positive ones only the sign bit).
@@ -208,7 +215,9 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
              "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
       SplatRecord<Scalar>& rec = ws.packed_[k];
       rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
-      rec.conic_a = s.conic_a[i]; rec.conic_b = s.conic_b[i]; rec.conic_c = s.conic_c[i];
+      rec.pxx = -detail::kHalfLog2e<Scalar> * s.conic_a[i];
+      rec.pxy = Scalar(-2) * detail::kHalfLog2e<Scalar> * s.conic_b[i];
+      rec.pyy = -detail::kHalfLog2e<Scalar> * s.conic_c[i];
       rec.opacity = s.opacity[i];
       rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
       rec.depth = s.depth[i];

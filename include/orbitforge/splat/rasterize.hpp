@@ -7,6 +7,7 @@
 // tile in depth order whose rect contains the pixel,
 //   power = -0.5 (a dx^2 + c dy^2) - b dx dy        (skip power > 0)
 //   alpha = min(0.99, opacity exp(power))           (skip alpha < 1/255)
+// (computed in base 2: see SplatRecord and simd::exp2_nonpositive),
 //   if T (1 - alpha) < 1e-4 the pixel stops and this Gaussian is NOT blended;
 //   else colour += T alpha c, depth += T alpha z, T *= 1 - alpha.
 // Outputs: colour + T background, final T, expected depth (unnormalised), the
@@ -33,8 +34,7 @@ namespace orbitforge {
 template <class Scalar>
 struct RasterParams {
   std::array<Scalar, 3> background{{0, 0, 0}};
-  int threads = 0;        // 0 = default (all hardware threads)
-  bool fast_exp = false;  // polynomial exp (relative error < 5e-5) instead of the exact one
+  int threads = 0;  // 0 = default (all hardware threads)
 };
 
 // The blending thresholds, in one place for the forward, backward and reference.
@@ -122,7 +122,7 @@ void prepare_raster_output(const TileGrid& g, RasterOutput<Scalar>& out) {
 }
 
 // One chunk's running state while it walks the tile's list front to back.
-template <class B, bool FastExp, class Scalar>
+template <class B, class Scalar>
 struct ChunkBlend {
   using M = simd::mask_t<B>;
   using Rules = RasterRules<Scalar>;
@@ -151,12 +151,10 @@ struct ChunkBlend {
     const B zero(Scalar(0)), one(Scalar(1));
     const M inside = active & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
     const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
-    // power = -0.5 (a dx^2 + c dy^2) - b dx dy
-    const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
-    const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
-    const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
-    const B alpha = simd::min(B(Rules::max_alpha()), B(G.opacity) * e);
-    const M valid = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
+    // The power in base 2 (SplatRecord): exp(power) = 2^p2.
+    const B p2 = simd::fma(B(G.pxx) * dx, dx, simd::fma(B(G.pxy) * dx, dy, B(G.pyy) * dy * dy));
+    const B alpha = simd::min(B(Rules::max_alpha()), B(G.opacity) * simd::exp2_nonpositive(p2));
+    const M valid = inside & (p2 <= zero) & (alpha >= B(Rules::min_alpha()));
     const B T_next = T * (one - alpha);
     const M blend = valid & (T_next >= B(Rules::min_transmittance()));
     // A valid pair that would push T below 1e-4 stops the pixel unblended.
@@ -206,10 +204,10 @@ struct ChunkBlend {
 // the same bit for bit.
 constexpr int kChunksTogether = 4;
 
-template <class B, bool FastExp, class Scalar>
+template <class B, class Scalar>
 void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L, const RasterParams<Scalar>& params,
                     RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out) {
-  using Chunk = ChunkBlend<B, FastExp, Scalar>;
+  using Chunk = ChunkBlend<B, Scalar>;
   const TileGrid& g = bins.grid;
   const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
   const Scalar fx0 = Scalar(tx0), fy0 = Scalar(ty0);
@@ -262,15 +260,10 @@ void rasterize_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>
   ws.lanes.build(g.tile_size, int(B::size));
   const int threads = resolve_threads(params.threads);
   ws.worker_stats.assign(std::size_t(threads), {});
-  auto run = [&](auto fast) {
-    constexpr bool Fast = decltype(fast)::value;
-    parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
-      auto& st = ws.worker_stats[std::size_t(w)];
-      detail::rasterize_tile<B, Fast>(int(t), bins, ws.lanes, params, out, st.evaluated, st.contributions);
-    });
-  };
-  if (params.fast_exp) run(std::true_type{});
-  else run(std::false_type{});
+  parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
+    auto& st = ws.worker_stats[std::size_t(w)];
+    detail::rasterize_tile<B>(int(t), bins, ws.lanes, params, out, st.evaluated, st.contributions);
+  });
   out.stats = {};
   for (const auto& st : ws.worker_stats) {
     out.stats.pairs_evaluated += st.evaluated;

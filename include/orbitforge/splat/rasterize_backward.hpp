@@ -52,7 +52,7 @@ template <class T> using identity_t = typename identity<T>::type;  // blocks ded
 
 enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGradG, kGradBl, kGradZ, kGradFields };
 
-template <class B, bool FastExp, class Scalar>
+template <class B, class Scalar>
 void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
                              const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
                              const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
@@ -135,13 +135,12 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
                              : replayed & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
       // Same arithmetic as the forward, so alpha (and the skip decisions) match bit for bit.
       const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
-      const B q = simd::fma(B(G.conic_a) * dx, dx, B(G.conic_c) * dy * dy);
-      const B power = simd::fma(B(Scalar(-0.5)), q, -(B(G.conic_b) * dx * dy));
-      if (!simd::any(inside & (power >= B(G.min_power)))) continue;  // no lane reaches alpha 1/255
-      const B e = FastExp ? simd::fast_exp(power) : simd::exp(power);
+      const B p2 = simd::fma(B(G.pxx) * dx, dx, simd::fma(B(G.pxy) * dx, dy, B(G.pyy) * dy * dy));
+      if (!simd::any(inside & (p2 >= B(G.min_power)))) continue;  // no lane reaches alpha 1/255
+      const B e = simd::exp2_nonpositive(p2);
       const B raw = B(G.opacity) * e;
       const B alpha = simd::min(B(Rules::max_alpha()), raw);
-      const M m = inside & (power <= zero) & (alpha >= B(Rules::min_alpha()));
+      const M m = inside & (p2 <= zero) & (alpha >= B(Rules::min_alpha()));
       if (!simd::any(m)) continue;
 
       const B T_after = B::load_unaligned(sT + base);
@@ -169,13 +168,20 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       g_a = simd::fma(v_power, dx * dx, g_a);
       g_b = simd::fma(v_power, dx * dy, g_b);
       g_c = simd::fma(v_power, dy * dy, g_c);
-      // d power / d mean_x = a dx + b dy;  d power / d mean_y = b dx + c dy
-      g_mx = simd::fma(v_power, simd::fma(B(G.conic_a), dx, B(G.conic_b) * dy), g_mx);
-      g_my = simd::fma(v_power, simd::fma(B(G.conic_b), dx, B(G.conic_c) * dy), g_my);
+      // The mean's gradient is linear in (dx, dy) with per-Gaussian
+      // coefficients: sum v_power dx and v_power dy, combine after the lane sums.
+      g_mx = simd::fma(v_power, dx, g_mx);
+      g_my = simd::fma(v_power, dy, g_my);
     }
     // The conic's power factors (-1/2, -1, -1/2) are applied once per vector.
     const B rows[kGradFields] = {g_o, B(Scalar(-0.5)) * g_a, -g_b, B(Scalar(-0.5)) * g_c, g_mx, g_my, g_r, g_g, g_bl, g_z};
-    simd::hadd_rows(rows, kGradFields, pair_grad + std::size_t(slot[j]) * kGradFields);
+    Scalar* out = pair_grad + std::size_t(slot[j]) * kGradFields;
+    simd::hadd_rows(rows, kGradFields, out);
+    // d power / d mean = -(d power / d (dx, dy)) = -ln 2 (d p2 / d (dx, dy)),
+    // d p2 / d dx = 2 pxx dx + pxy dy, d p2 / d dy = pxy dx + 2 pyy dy.
+    const Scalar sx = out[kGradMx], sy = out[kGradMy], neg_ln2 = Scalar(-0.69314718055994530942);
+    out[kGradMx] = neg_ln2 * (Scalar(2) * G.pxx * sx + G.pxy * sy);
+    out[kGradMy] = neg_ln2 * (G.pxy * sx + Scalar(2) * G.pyy * sy);
   }
 }
 
@@ -212,16 +218,10 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
 
-  auto run = [&](auto fast) {
-    constexpr bool Fast = decltype(fast)::value;
-    parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
-      detail::rasterize_backward_tile<B, Fast>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha, v_depth,
-                                                ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data(),
-                                                ws.live_rank_end[t]);
-    });
-  };
-  if (params.fast_exp) run(std::true_type{});
-  else run(std::false_type{});
+  parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
+    detail::rasterize_backward_tile<B>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha, v_depth,
+                                       ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data(), ws.live_rank_end[t]);
+  });
 
   // Sum each Gaussian's per-tile slots (stored rank-major, in tile order:
   // deterministic), streaming through pair_grad; ranks split across workers.

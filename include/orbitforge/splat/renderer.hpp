@@ -32,7 +32,6 @@ struct RenderParams {
   int threads = 0;              // 0 = default (all hardware threads)
   double near_plane = 0.01;     // cull Gaussians with camera-space z <= near_plane
   int tile_size = 16;           // pixels per tile side (the image does not depend on it)
-  bool fast_exp = false;        // polynomial exp in the rasterizer (see bench_render for its error)
   bool tight_extents = true;    // opacity-aware rects (never change the image)
 };
 
@@ -139,7 +138,6 @@ class Renderer {
     RasterParams<Scalar> rp;
     rp.background = params_.background;
     rp.threads = threads;
-    rp.fast_exp = params_.fast_exp;
     return rp;
   }
   template <class T>
