@@ -6,6 +6,7 @@
 // inline rather than waiting, so parallel_for never deadlocks.
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstddef>
 #include <exception>
@@ -39,7 +40,7 @@ class ThreadPool {
   ~ThreadPool() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
+      stop_.store(true);
     }
     wake_.notify_all();
     for (auto& t : workers_) t.join();
@@ -63,19 +64,36 @@ class ThreadPool {
       job_ = &fn;
       count_ = n;
       next_.store(0);
-      active_ = threads_ - 1;
+      active_.store(threads_ - 1);
       error_ = nullptr;
-      ++generation_;
+      generation_.fetch_add(1, std::memory_order_release);
     }
     wake_.notify_all();
     work(0);
-    std::unique_lock<std::mutex> lock(mutex_);
-    done_.wait(lock, [this] { return active_ == 0; });
+    if (!spin_until([this] { return active_.load(std::memory_order_acquire) == 0; })) {
+      std::unique_lock<std::mutex> lock(mutex_);
+      done_.wait(lock, [this] { return active_.load() == 0; });
+    }
     job_ = nullptr;
     if (error_) std::rethrow_exception(error_);
   }
 
  private:
+  // Calls and items come back to back in training (tens per step): a worker that
+  // went to sleep costs a wake-up (~10 us each way on a VM) every call, so both
+  // sides spin for a short while before blocking.
+  template <class Pred>
+  static bool spin_until(Pred&& done) {
+    using clock = std::chrono::steady_clock;
+    const auto deadline = clock::now() + std::chrono::microseconds(50);
+    for (int i = 1;; ++i) {
+      if (done()) return true;
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+      if (i % 64 == 0 && clock::now() > deadline) return done();
+    }
+  }
   void work(int worker) {
     for (;;) {
       const std::size_t i = next_.fetch_add(1);
@@ -92,16 +110,18 @@ class ThreadPool {
   void worker_loop(int worker) {
     std::size_t seen = 0;
     for (;;) {
-      {
+      const auto fresh = [&] { return stop_.load() || generation_.load(std::memory_order_acquire) != seen; };
+      if (!spin_until(fresh)) {
         std::unique_lock<std::mutex> lock(mutex_);
-        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
-        if (stop_) return;
-        seen = generation_;
+        wake_.wait(lock, fresh);
       }
+      if (stop_.load()) return;
+      // The job's fields were written before the generation (release / acquire).
+      seen = generation_.load(std::memory_order_acquire);
       work(worker);
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        if (--active_ == 0) done_.notify_one();
+      if (active_.fetch_sub(1, std::memory_order_acq_rel) == 1) {
+        std::lock_guard<std::mutex> lock(mutex_);  // the caller may be about to wait
+        done_.notify_one();
       }
     }
   }
@@ -111,10 +131,11 @@ class ThreadPool {
   std::mutex mutex_, busy_;
   std::condition_variable wake_, done_;
   const std::function<void(std::size_t, int)>* job_ = nullptr;
-  std::size_t count_ = 0, generation_ = 0;
+  std::size_t count_ = 0;
+  std::atomic<std::size_t> generation_{0};
   std::atomic<std::size_t> next_{0};
-  int active_ = 0;
-  bool stop_ = false;
+  std::atomic<int> active_{0};
+  std::atomic<bool> stop_{false};
   std::exception_ptr error_;
 };
 
