@@ -105,21 +105,34 @@ void gaussian_window(const SsimParams& p, std::vector<Scalar>& w) {
 }
 
 // out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
-// for each of `planes` consecutive rows of `width` values. Contiguous
-// multiply-adds, one per tap pair (the window is symmetric), which compilers
-// vectorise well.
+// for each of `planes` consecutive rows of `width` values. Each output vector sums
+// all its taps in a register (one pass per tap over out[] was load/store bound);
+// the window is symmetric, so taps are added in pairs, d = 1 .. r in order.
 template <class Scalar>
 void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r) {
+  using B = simd::native_batch<Scalar>;
+  constexpr int L = int(B::size);
   const Scalar wc = w[r];
-  for (int p = 0; p < planes; ++p, in += width, out += width) {
-    for (int i = 0; i < width; ++i) out[i] = wc * in[i];
-    for (int d = 1; d <= r && d < width; ++d) {
-      const Scalar wd = w[r + d];  // == w[r - d]
-      // Interior: both taps inside; ends: only one of them.
-      for (int i = d; i < width - d; ++i) out[i] += wd * (in[i + d] + in[i - d]);
-      for (int i = 0; i < std::min(d, width - d); ++i) out[i] += wd * in[i + d];
-      for (int i = std::max(d, width - d); i < width; ++i) out[i] += wd * in[i - d];
+  // One output with taps cut at the row's ends.
+  auto edge = [&](const Scalar* row, int i) {
+    Scalar acc = wc * row[i];
+    for (int d = 1; d <= r; ++d) {
+      const Scalar lo = i - d >= 0 ? row[i - d] : Scalar(0), hi = i + d < width ? row[i + d] : Scalar(0);
+      acc = std::fma(w[r + d], lo + hi, acc);
     }
+    return acc;
+  };
+  for (int p = 0; p < planes; ++p, in += width, out += width) {
+    const int lo = std::min(r, width), hi = std::max(lo, width - r);  // [lo, hi): every tap inside
+    for (int i = 0; i < lo; ++i) out[i] = edge(in, i);
+    int i = lo;
+    for (; i + L <= hi; i += L) {
+      B acc = B(wc) * B::load_unaligned(in + i);
+      for (int d = 1; d <= r; ++d)
+        acc = simd::fma(B(w[r + d]), B::load_unaligned(in + i - d) + B::load_unaligned(in + i + d), acc);
+      acc.store_unaligned(out + i);
+    }
+    for (; i < width; ++i) out[i] = edge(in, i);
   }
 }
 
@@ -137,7 +150,7 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
                     Source&& source, Sink&& sink) {
   const std::size_t len = std::size_t(planes) * std::size_t(W);
   const int win = 2 * r + 1;
-  const std::size_t need = std::size_t(win + 2) * len + std::size_t(W);
+  const std::size_t need = std::size_t(win + 3) * len + std::size_t(W);
   if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
   for (auto& b : ws.rows)
     if (b.size() < need) b.resize(need);
@@ -147,7 +160,12 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
     Scalar* ring = ws.rows[std::size_t(worker)].data();
     Scalar* raw = ring + std::size_t(win) * len;
     Scalar* col = raw + len;
-    Scalar* scratch = col + len;
+    Scalar* zeros = col + len;
+    Scalar* scratch = zeros + len;
+    std::fill(zeros, zeros + len, Scalar(0));
+    using B = simd::native_batch<Scalar>;
+    constexpr std::size_t L = B::size;
+    std::vector<const Scalar*> above(std::size_t(r) + 1), below(std::size_t(r) + 1);
     const int y0 = int(std::size_t(H) * band / std::size_t(bands));
     const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
     auto ring_row = [&](int y) { return ring + std::size_t(y % win) * len; };
@@ -155,20 +173,25 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
     const Scalar wc = w[r];
     for (int y = y0; y < y1; ++y) {
       for (; next <= std::min(H - 1, y + r); ++next) filter_row(source(next, raw), ring_row(next), W, planes, w, r);
-      // Along the column: sum_d w[r + d] row[y + d] over the rows that exist.
-      const Scalar* __restrict centre = ring_row(y);
-      for (std::size_t i = 0; i < len; ++i) col[i] = wc * centre[i];
+      // Along the column: sum_d w[r + d] row[y + d] over the rows that exist, all
+      // taps of an output vector in a register (rows missing at the image's top
+      // or bottom read a zero row).
+      const Scalar* centre = ring_row(y);
       for (int d = 1; d <= r; ++d) {
-        const bool up = y - d >= 0, down = y + d < H;
-        const Scalar wd = w[r + d];
-        if (up && down) {
-          const Scalar* __restrict a = ring_row(y - d);
-          const Scalar* __restrict b = ring_row(y + d);
-          for (std::size_t i = 0; i < len; ++i) col[i] += wd * (a[i] + b[i]);
-        } else if (up || down) {
-          const Scalar* __restrict a = ring_row(up ? y - d : y + d);
-          for (std::size_t i = 0; i < len; ++i) col[i] += wd * a[i];
-        }
+        above[d] = y - d >= 0 ? ring_row(y - d) : zeros;
+        below[d] = y + d < H ? ring_row(y + d) : zeros;
+      }
+      std::size_t i = 0;
+      for (; i + L <= len; i += L) {
+        B acc = B(wc) * B::load_unaligned(centre + i);
+        for (int d = 1; d <= r; ++d)
+          acc = simd::fma(B(w[r + d]), B::load_unaligned(above[d] + i) + B::load_unaligned(below[d] + i), acc);
+        acc.store_unaligned(col + i);
+      }
+      for (; i < len; ++i) {
+        Scalar acc = wc * centre[i];
+        for (int d = 1; d <= r; ++d) acc = std::fma(w[r + d], above[d][i] + below[d][i], acc);
+        col[i] = acc;
       }
       sink(y, col, scratch);
     }
