@@ -52,7 +52,8 @@ template <class T> using identity_t = typename identity<T>::type;  // blocks ded
 
 enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGradG, kGradBl, kGradZ, kGradFields };
 
-template <class B, class Scalar>
+// Depth: v_depth is given (training has no depth term: its loads and sums are skipped).
+template <class B, bool Depth, class Scalar>
 void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
                              const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
                              const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
@@ -146,12 +147,17 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       const B T_after = B::load_unaligned(sT + base);
       const B acc = B::load_unaligned(sAcc + base);
       const B vr = B::load_unaligned(sVr + base), vg = B::load_unaligned(sVg + base);
-      const B vb = B::load_unaligned(sVb + base), vd = B::load_unaligned(sVd + base);
+      const B vb = B::load_unaligned(sVb + base);
       const B inv_one_minus = one / (one - alpha);
       const B T = T_after * inv_one_minus;  // transmittance in front of this Gaussian
       const B w = alpha * T;
       // v . (colour, depth) of this Gaussian as seen by the pixel
-      const B vc = simd::fma(vr, B(G.color_r), simd::fma(vg, B(G.color_g), simd::fma(vb, B(G.color_b), vd * B(G.depth))));
+      B vd = zero, vc = vb * B(G.color_b);
+      if constexpr (Depth) {
+        vd = B::load_unaligned(sVd + base);
+        vc = simd::fma(vb, B(G.color_b), vd * B(G.depth));
+      }
+      vc = simd::fma(vr, B(G.color_r), simd::fma(vg, B(G.color_g), vc));
       const B v_alpha_i = simd::fma(T, vc, -(acc * inv_one_minus));
       simd::select(m, T, T_after).store_unaligned(sT + base);
       simd::select(m, simd::fma(w, vc, acc), acc).store_unaligned(sAcc + base);
@@ -160,7 +166,7 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       g_r = simd::fma(wm, vr, g_r);
       g_g = simd::fma(wm, vg, g_g);
       g_bl = simd::fma(wm, vb, g_bl);
-      g_z = simd::fma(wm, vd, g_z);
+      if constexpr (Depth) g_z = simd::fma(wm, vd, g_z);
       // Through alpha = opacity exp(power) where it was not clamped.
       const B va = simd::select(m & (raw <= B(Rules::max_alpha())), v_alpha_i, zero);
       g_o = simd::fma(va, e, g_o);
@@ -218,10 +224,15 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
 
-  parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
-    detail::rasterize_backward_tile<B>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha, v_depth,
-                                       ws.worker_scratch[std::size_t(w)].data(), ws.pair_grad.data(), ws.live_rank_end[t]);
-  });
+  auto run = [&](auto depth) {
+    parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
+      detail::rasterize_backward_tile<B, decltype(depth)::value>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha,
+                                                                 v_depth, ws.worker_scratch[std::size_t(w)].data(),
+                                                                 ws.pair_grad.data(), ws.live_rank_end[t]);
+    });
+  };
+  if (v_depth) run(std::true_type{});
+  else run(std::false_type{});
 
   // Sum each Gaussian's per-tile slots (stored rank-major, in tile order:
   // deterministic), streaming through pair_grad; ranks split across workers.
