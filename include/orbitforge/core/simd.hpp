@@ -87,7 +87,16 @@ template <class T> struct mask_of<scalar_batch<T>> { using type = scalar_mask<T>
 
 // ---------------------------------------------------------------- xsimd path
 #if ORBITFORGE_SIMD_ENABLED
-template <class T, class A> inline xsimd::batch<T, A> fma(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y, const xsimd::batch<T, A>& z) { return xsimd::fma(x, y, z); }
+// xsimd 8.1 has no AVX-512 fma kernel: its generic x * y + z is fused only where
+// the compiler contracts it (GCC at -O2 and above), so -O1 builds rounded twice
+// and disagreed with std::fma on the scalar path. Fused explicitly here.
+template <class T, class A> inline xsimd::batch<T, A> fma(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y, const xsimd::batch<T, A>& z) {
+#if defined(__AVX512F__)
+  if constexpr (std::is_base_of<xsimd::avx512f, A>::value && std::is_same<T, float>::value) return _mm512_fmadd_ps(x, y, z);
+  if constexpr (std::is_base_of<xsimd::avx512f, A>::value && std::is_same<T, double>::value) return _mm512_fmadd_pd(x, y, z);
+#endif
+  return xsimd::fma(x, y, z);
+}
 template <class T, class A> inline xsimd::batch<T, A> exp(const xsimd::batch<T, A>& x) { return xsimd::exp(x); }
 template <class T, class A> inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::min(x, y); }
 template <class T, class A> inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::max(x, y); }
