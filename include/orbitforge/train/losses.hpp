@@ -104,35 +104,54 @@ void gaussian_window(const SsimParams& p, std::vector<Scalar>& w) {
   for (int k = 0; k < p.window; ++k) w[std::size_t(k)] = Scalar(g[std::size_t(k)] / sum);
 }
 
-// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
-// for each of `planes` consecutive rows of `width` values. Each output vector sums
-// all its taps in a register (one pass per tap over out[] was load/store bound);
-// the window is symmetric, so taps are added in pairs, d = 1 .. r in order.
+// out[i] = w[r] centre[i] + sum_{d = 1..r} w[r + d] (lo[d][i] + hi[d][i]) for i in
+// [0, n): a symmetric window applied through per-tap row pointers (the window
+// is symmetric, so taps are added in pairs, d = 1 .. r in order). Each output
+// vector sums all its taps in a register; one load/store pass per tap over out[]
+// was load/store bound.
 template <class Scalar>
-void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r) {
+void symmetric_taps(const Scalar* centre, const Scalar* const* lo, const Scalar* const* hi, Scalar* out,
+                    std::size_t n, const Scalar* w, int r) {
   using B = simd::native_batch<Scalar>;
-  constexpr int L = int(B::size);
   const Scalar wc = w[r];
+  std::size_t i = 0;
+  for (; i + B::size <= n; i += B::size) {
+    B acc = B(wc) * B::load_unaligned(centre + i);
+    for (int d = 1; d <= r; ++d)
+      acc = simd::fma(B(w[r + d]), B::load_unaligned(lo[d] + i) + B::load_unaligned(hi[d] + i), acc);
+    acc.store_unaligned(out + i);
+  }
+  for (; i < n; ++i) {
+    Scalar acc = wc * centre[i];
+    for (int d = 1; d <= r; ++d) acc = std::fma(w[r + d], lo[d][i] + hi[d][i], acc);
+    out[i] = acc;
+  }
+}
+
+// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
+// for each of `planes` consecutive rows of `width` values. lo, hi: r + 1
+// pointers of scratch.
+template <class Scalar>
+void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r,
+                const Scalar** lo, const Scalar** hi) {
   // One output with taps cut at the row's ends.
   auto edge = [&](const Scalar* row, int i) {
-    Scalar acc = wc * row[i];
+    Scalar acc = w[r] * row[i];
     for (int d = 1; d <= r; ++d) {
-      const Scalar lo = i - d >= 0 ? row[i - d] : Scalar(0), hi = i + d < width ? row[i + d] : Scalar(0);
-      acc = std::fma(w[r + d], lo + hi, acc);
+      const Scalar a = i - d >= 0 ? row[i - d] : Scalar(0), b = i + d < width ? row[i + d] : Scalar(0);
+      acc = std::fma(w[r + d], a + b, acc);
     }
     return acc;
   };
+  const int begin = std::min(r, width), end = std::max(begin, width - r);  // [begin, end): every tap inside
   for (int p = 0; p < planes; ++p, in += width, out += width) {
-    const int lo = std::min(r, width), hi = std::max(lo, width - r);  // [lo, hi): every tap inside
-    for (int i = 0; i < lo; ++i) out[i] = edge(in, i);
-    int i = lo;
-    for (; i + L <= hi; i += L) {
-      B acc = B(wc) * B::load_unaligned(in + i);
-      for (int d = 1; d <= r; ++d)
-        acc = simd::fma(B(w[r + d]), B::load_unaligned(in + i - d) + B::load_unaligned(in + i + d), acc);
-      acc.store_unaligned(out + i);
+    for (int i = 0; i < begin; ++i) out[i] = edge(in, i);
+    for (int d = 1; d <= r; ++d) {
+      lo[d] = in + begin - d;
+      hi[d] = in + begin + d;
     }
-    for (; i < width; ++i) out[i] = edge(in, i);
+    symmetric_taps(in + begin, lo, hi, out + begin, std::size_t(end - begin), w, r);
+    for (int i = end; i < width; ++i) out[i] = edge(in, i);
   }
 }
 
@@ -163,36 +182,20 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
     Scalar* zeros = col + len;
     Scalar* scratch = zeros + len;
     std::fill(zeros, zeros + len, Scalar(0));
-    using B = simd::native_batch<Scalar>;
-    constexpr std::size_t L = B::size;
     std::vector<const Scalar*> above(std::size_t(r) + 1), below(std::size_t(r) + 1);
     const int y0 = int(std::size_t(H) * band / std::size_t(bands));
     const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
     auto ring_row = [&](int y) { return ring + std::size_t(y % win) * len; };
     int next = std::max(0, y0 - r);  // next source row to filter into the ring
-    const Scalar wc = w[r];
     for (int y = y0; y < y1; ++y) {
-      for (; next <= std::min(H - 1, y + r); ++next) filter_row(source(next, raw), ring_row(next), W, planes, w, r);
-      // Along the column: sum_d w[r + d] row[y + d] over the rows that exist, all
-      // taps of an output vector in a register (rows missing at the image's top
-      // or bottom read a zero row).
-      const Scalar* centre = ring_row(y);
+      for (; next <= std::min(H - 1, y + r); ++next)
+        filter_row(source(next, raw), ring_row(next), W, planes, w, r, above.data(), below.data());
+      // Along the column: rows missing at the image's top or bottom read a zero row.
       for (int d = 1; d <= r; ++d) {
         above[d] = y - d >= 0 ? ring_row(y - d) : zeros;
         below[d] = y + d < H ? ring_row(y + d) : zeros;
       }
-      std::size_t i = 0;
-      for (; i + L <= len; i += L) {
-        B acc = B(wc) * B::load_unaligned(centre + i);
-        for (int d = 1; d <= r; ++d)
-          acc = simd::fma(B(w[r + d]), B::load_unaligned(above[d] + i) + B::load_unaligned(below[d] + i), acc);
-        acc.store_unaligned(col + i);
-      }
-      for (; i < len; ++i) {
-        Scalar acc = wc * centre[i];
-        for (int d = 1; d <= r; ++d) acc = std::fma(w[r + d], above[d][i] + below[d][i], acc);
-        col[i] = acc;
-      }
+      symmetric_taps(ring_row(y), above.data(), below.data(), col, len, w, r);
       sink(y, col, scratch);
     }
   });
