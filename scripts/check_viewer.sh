@@ -1,0 +1,113 @@
+#!/usr/bin/env bash
+# Ecosystem check: a scene orbitforge reconstructed opens in a web Gaussian-splat viewer.
+#
+#   scripts/check_viewer.sh          # BUILD_DIR=build by default; VIEWER_CHECK_OUT=DIR keeps the pictures
+#
+# Steps: build full_pipeline and render_orbit; run the pipeline small on its synthetic
+# input (final.ply + orbit.json, a real reconstruction); install the viewer (Spark on
+# three.js) and playwright-core from npm into a temporary prefix (pinned by
+# scripts/viewer/package-lock.json); render one orbit camera with render_orbit; draw the
+# same camera in headless Chromium with software WebGL (SwiftShader) through
+# scripts/viewer/index.html; pass when the PSNR of the viewer's picture against ours is
+# at least VIEWER_MIN_PSNR (25 dB).
+#
+# Outside CI (CI unset or "false") it exits 0 with "skipped: ..." when node/npm or
+# chromium are missing, the npm registry cannot be reached or Chromium cannot start;
+# with CI=true it installs chromium (and node/npm) with apt-get when missing and fails
+# instead of skipping.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+start=$(date +%s)
+BUILD_DIR=${BUILD_DIR:-build}
+MIN_PSNR=${VIEWER_MIN_PSNR:-25}
+CHROMIUM=${CHROMIUM:-/usr/bin/chromium}
+export CHROMIUM
+
+in_ci() { [ -n "${CI:-}" ] && [ "${CI}" != "false" ]; }
+skip() {
+  if in_ci; then
+    echo "FAIL: $1 (CI=$CI: the viewer check must run)"
+    exit 1
+  fi
+  echo "skipped: $1"
+  exit 0
+}
+apt_install() {
+  local sudo=""
+  [ "$(id -u)" -eq 0 ] || sudo="sudo"
+  echo "== installing $* with apt-get"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "$@"
+}
+
+if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
+  if in_ci; then apt_install nodejs npm; else skip "node/npm not installed (Debian: apt-get install nodejs npm)"; fi
+fi
+if [ ! -x "$CHROMIUM" ]; then
+  if in_ci && [ "$CHROMIUM" = /usr/bin/chromium ]; then apt_install chromium; else
+    skip "$CHROMIUM not found (Debian: apt-get install chromium)"
+  fi
+fi
+
+WORK=$(mktemp -d "${TMPDIR:-/tmp}/orbitforge-viewer.XXXXXX")
+trap 'rm -rf "$WORK"' EXIT
+
+echo "== installing the viewer (scripts/viewer/package-lock.json) into $WORK/npm"
+mkdir -p "$WORK/npm"
+cp scripts/viewer/package.json scripts/viewer/package-lock.json "$WORK/npm/"
+if ! (cd "$WORK/npm" && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 timeout 600 npm ci --no-audit --no-fund >"$WORK/npm.log" 2>&1); then
+  tail -5 "$WORK/npm.log" || true
+  skip "npm registry not reachable (npm ci of scripts/viewer failed)"
+fi
+node -e 'for (const p of ["three", "@sparkjsdev/spark", "playwright-core"])
+  console.log(`installed: ${p} ${require(process.argv[1] + "/node_modules/" + p + "/package.json").version}`)' "$WORK/npm"
+
+echo "== building full_pipeline and render_orbit in $BUILD_DIR"
+launcher=()
+command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
+generator=()
+command -v ninja >/dev/null && generator=(-G Ninja)
+cmake -S . -B "$BUILD_DIR" "${generator[@]}" "${launcher[@]}" -DCMAKE_BUILD_TYPE=Release >"$WORK/cmake.log" 2>&1 ||
+  { cat "$WORK/cmake.log"; exit 1; }
+cmake --build "$BUILD_DIR" --parallel "$(nproc)" --target full_pipeline render_orbit >"$WORK/build.log" 2>&1 ||
+  { tail -30 "$WORK/build.log"; exit 1; }
+built=$(date +%s)
+
+# The scene: the whole method on the synthetic input, at a size that fits CI.
+PIPE="$WORK/pipeline"
+PIPELINE_ARGS=(--width 64 --height 64 --views 37 --iters 300 --median-samples 16 --background 0,0,0 --quiet)
+echo "== full_pipeline ${PIPELINE_ARGS[*]}"
+"$BUILD_DIR/examples/full_pipeline" "${PIPELINE_ARGS[@]}" --out "$PIPE" >"$WORK/pipeline.log" 2>&1 ||
+  { tail -30 "$WORK/pipeline.log"; echo "FAIL: full_pipeline"; exit 1; }
+scened=$(date +%s)
+"$BUILD_DIR/examples/ply_tool" info "$PIPE/final.ply" 2>/dev/null | head -3 || true
+
+# One orbit camera (a third of the way round, by default), written as a single camera
+# for both renderers.
+INDEX=${VIEWER_CAMERA_INDEX:-}
+node -e '
+const fs = require("fs");
+const orbit = JSON.parse(fs.readFileSync(process.argv[1], "utf8"));
+const n = orbit.cameras.length;
+const i = process.argv[3] === "" ? Math.floor(n / 3) : Number(process.argv[3]);
+if (!(Number.isInteger(i) && i >= 0 && i < n)) { console.error(`camera index ${process.argv[3]} outside 0..${n - 1}`); process.exit(1); }
+fs.writeFileSync(process.argv[2], JSON.stringify(orbit.cameras[i]));
+console.log(`camera ${i} of ${n} (azimuth ${orbit.cameras[i].azimuth_deg.toFixed(1)} deg), ${orbit.cameras[i].width}x${orbit.cameras[i].height}`);
+' "$PIPE/orbit.json" "$PIPE/cam.json" "$INDEX"
+"$BUILD_DIR/examples/render_orbit" --ply "$PIPE/final.ply" --camera "$PIPE/cam.json" --background 0,0,0 \
+  --out "$PIPE/ours" >/dev/null
+
+echo "== drawing final.ply in headless Chromium ($CHROMIUM) with the viewer"
+OUT=${VIEWER_CHECK_OUT:-$WORK/check}
+status=0
+node scripts/viewer/check.mjs --modules "$WORK/npm/node_modules" --data "$PIPE" --ply final.ply --camera cam.json \
+  --ref ours/00000.png --bg 0,0,0 --min-psnr "$MIN_PSNR" --scale 2 --out "$OUT" || status=$?
+end=$(date +%s)
+echo "viewer check: $((end - start)) s (build $((built - start)) s, scene $((scened - built)) s, viewer $((end - scened)) s)"
+case $status in
+  0) echo "PASS: the viewer's picture of orbitforge's final.ply matches render_orbit (PSNR >= $MIN_PSNR dB)" ;;
+  3) skip "Chromium could not start or has no WebGL2" ;;
+  *) echo "FAIL: the viewer's picture differs from render_orbit (see above; VIEWER_CHECK_OUT=DIR keeps the pictures)"
+     exit 1 ;;
+esac
