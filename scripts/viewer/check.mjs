@@ -2,12 +2,13 @@
 // at one camera; the picture is compared with orbitforge's own render of that camera.
 //
 //   node check.mjs --modules DIR --data DIR --ply NAME --camera NAME --ref NAME --out DIR
-//                  [--index N] [--bg r,g,b] [--min-psnr 25] [--scale S]
+//                  [--index N] [--bg r,g,b] [--min-psnr 25] [--scale S] [--ext 0]
 //
-// NAMEs are paths inside --data. Writes OUT/viewer.png (the viewer's picture),
-// OUT/side_by_side.png (viewer | orbitforge | 4 x |difference|, scaled S times) and
-// OUT/result.json. Exit status: 0 pass, 1 mismatch or viewer error, 2 usage,
-// 3 Chromium could not be started or has no WebGL2 (the caller decides whether to skip).
+// NAMEs are paths inside --data; --ext 0 selects Spark's compact encoding (viewer.js).
+// Writes OUT/viewer.png (the viewer's picture), OUT/side_by_side.png (viewer |
+// orbitforge | 4 x |difference|, scaled S times) and OUT/result.json. Exit status:
+// 0 pass, 1 mismatch or viewer error, 2 usage, 3 Chromium could not be started or has
+// no WebGL2 (the caller decides whether to skip).
 import fs from 'node:fs';
 import path from 'node:path';
 import { createRequire } from 'node:module';
@@ -21,7 +22,7 @@ function usage(message) {
 let args;
 try {
   args = parseArgs(process.argv.slice(2),
-                   ['modules', 'data', 'ply', 'camera', 'ref', 'out', 'index', 'bg', 'min-psnr', 'scale']);
+                   ['modules', 'data', 'ply', 'camera', 'ref', 'out', 'index', 'bg', 'min-psnr', 'scale', 'ext']);
 } catch (e) {
   usage(e.message);
 }
@@ -30,6 +31,7 @@ const minPsnr = Number(args['min-psnr'] ?? 25);
 const scale = Number(args.scale ?? 1);
 if (!Number.isFinite(minPsnr)) usage(`--min-psnr must be a number, got '${args['min-psnr']}'`);
 if (!Number.isInteger(scale) || scale < 1 || scale > 8) usage(`--scale must be 1..8, got '${args.scale}'`);
+if (args.ext !== undefined && args.ext !== '0' && args.ext !== '1') usage(`--ext must be 0 or 1, got '${args.ext}'`);
 for (const k of ['ply', 'camera', 'ref'])
   if (!fs.existsSync(path.join(args.data, args[k]))) usage(`--${k}: ${path.join(args.data, args[k])} does not exist`);
 
@@ -73,7 +75,6 @@ try {
   page.on('console', (m) => log.push(`[console.${m.type()}] ${m.text()}`));
   page.on('pageerror', (e) => log.push(`[pageerror] ${e.message}`));
   page.on('requestfailed', (r) => log.push(`[requestfailed] ${r.url()} ${r.failure()?.errorText}`));
-  await page.goto(`${origin}/index.html`);
   const gpu = await page.evaluate(() => {
     const gl = document.createElement('canvas').getContext('webgl2');
     if (!gl) return null;
@@ -91,7 +92,7 @@ try {
       index: args.index,
       bg: args.bg,
       check: 1,
-      ext: process.env.VIEWER_EXT,
+      ext: args.ext,
     });
     const url = `${origin}/index.html?${query}`;
     console.log(`page: ${url}`);
