@@ -163,7 +163,11 @@ async function main() {
 
   info.textContent = `loading ${ply} ...`;
   const mesh = new SplatMesh({ url: ply, extSplats: query.get('ext') !== '0' });
-  await mesh.initialized;
+  try {
+    await mesh.initialized;
+  } catch (e) {
+    throw new Error(`${ply}: ${(e && e.message) || e}`);
+  }
   scene.add(mesh);
   const count = mesh.packedSplats?.numSplats ?? mesh.extSplats?.numSplats ?? mesh.splats?.numSplats;
   state.splats = count;
