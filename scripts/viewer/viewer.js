@@ -158,7 +158,7 @@ async function main() {
   });
   scene.add(spark);
 
-  const k = cam || { width: 16, height: 9, fx: 12, fy: 12, cx: 8, cy: 4.5 };
+  const k = cam || { width: 16, height: 9, fx: 12, fy: 12, cx: 8, cy: 4.5 };  // no camera: 41 deg vertical field of view
   const camera = new IntrinsicsCamera(k, 0.01, 1000);  // near = render_orbit's near plane
 
   info.textContent = `loading ${ply} ...`;
