@@ -258,3 +258,70 @@ TEST_CASE("deformation field: vjp matches central differences end to end", "[def
   for (std::size_t k = 0; k < g.size(); ++k) maxdiff = std::max(maxdiff, std::abs(g[k] - g2[k]));
   CHECK(maxdiff < 1e-12);
 }
+
+TEMPLATE_TEST_CASE("deformation field: in a normalised frame it is the same network at another scale",
+                   "[deform]", float, double) {
+  using S = TestType;
+  DeformationFieldParams p;
+  p.depth = 3;
+  p.width = 16;
+  p.seed = 11;
+  p.head_init_scale = 1.0;
+  p.scale_offset = ScaleOffset::additive;  // ds is a length; the relative mode is checked below
+  DeformationField<S> scaled(p), unit(p);
+  const Eigen::Matrix<S, 3, 1> c(S(0.3), S(-1.2), S(2.0));
+  const S L = S(0.2);
+  scaled.set_frame(c, L);
+  std::mt19937 rng(21);
+  const Matrix3X<S> xn = random3<S>(40, rng, -1, 1);
+  const Matrix3X<S> x = (xn * L).colwise() + c;  // the same points in world units
+  typename DeformationField<S>::Workspace ws_s, ws_u;
+  DeformationOffsets<S> os, ou;
+  scaled.evaluate(x, S(0.6), ws_s, os, 1);
+  unit.evaluate(xn, S(0.6), ws_u, ou, 1);
+  const S tol = sizeof(S) == 4 ? S(2e-5) : S(1e-12);
+  CHECK((os.dx - ou.dx * L).cwiseAbs().maxCoeff() <= tol);
+  CHECK((os.ds - ou.ds * L).cwiseAbs().maxCoeff() <= tol);
+  CHECK((os.dq - ou.dq).cwiseAbs().maxCoeff() <= tol);
+
+  // Gradients follow the chain rule through the frame.
+  DeformationOffsets<S> w, wl;
+  w.dx = random3<S>(40, rng);
+  w.dq = random4<S>(40, rng);
+  w.ds = random3<S>(40, rng);
+  wl.dx = w.dx * L;
+  wl.dq = w.dq;
+  wl.ds = w.ds * L;
+  std::vector<S> gs(scaled.parameter_count(), S(0)), gu(unit.parameter_count(), S(0));
+  Matrix3X<S> vs, vu;
+  scaled.evaluate_vjp(ws_s, w, gs.data(), &vs, 1);
+  unit.evaluate_vjp(ws_u, wl, gu.data(), &vu, 1);
+  S gmax = 0, gdiff = 0;
+  for (std::size_t k = 0; k < gs.size(); ++k) {
+    gmax = std::max(gmax, std::abs(gu[k]));
+    gdiff = std::max(gdiff, std::abs(gs[k] - gu[k]));
+  }
+  CHECK(gdiff <= tol * std::max(S(1), gmax) * S(10));
+  CHECK((vs - vu / L).cwiseAbs().maxCoeff() <= tol * S(10) * std::max(S(1), (vu / L).cwiseAbs().maxCoeff()));
+
+  // Relative scale offsets have no unit: the frame leaves ds alone.
+  DeformationFieldParams pl = p;
+  pl.scale_offset = ScaleOffset::log;
+  DeformationField<S> rel(pl), rel_unit(pl);
+  rel.set_frame(c, L);
+  DeformationOffsets<S> rs, ru;
+  rel.evaluate(x, S(0.6), ws_s, rs, 1);
+  rel_unit.evaluate(xn, S(0.6), ws_u, ru, 1);
+  CHECK(rs.scale_offset == ScaleOffset::log);
+  CHECK((rs.ds - ru.ds).cwiseAbs().maxCoeff() <= tol);
+  CHECK((rs.dx - ru.dx * L).cwiseAbs().maxCoeff() <= tol);
+
+  // The frame is saved with the network.
+  std::stringstream ss;
+  scaled.save(ss);
+  const auto loaded = DeformationField<S>::load(ss);
+  CHECK(loaded.frame_unit() == L);
+  CHECK(loaded.frame_center() == c);
+  CHECK(loaded.params().scale_offset == ScaleOffset::additive);
+  CHECK_THROWS_AS(scaled.set_frame(c, S(0)), Error);
+}

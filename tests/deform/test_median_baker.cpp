@@ -267,6 +267,7 @@ TEMPLATE_TEST_CASE("MedianGS of a DeformationField matches a direct per-Gaussian
   fp.width = 16;
   fp.head_init_scale = 1.0;
   fp.seed = 9;
+  fp.scale_offset = ScaleOffset::additive;  // the paper's formula (expected_state)
   DeformationField<S> field(fp);
   MedianBakeParams p;
   p.samples = 16;
@@ -289,4 +290,34 @@ TEMPLATE_TEST_CASE("MedianGS of a DeformationField matches a direct per-Gaussian
     }
     check_state(baked, scene, j, o, 1e-6);
   }
+}
+
+TEMPLATE_TEST_CASE("MedianGS with relative scale offsets: the median of s exp(ds)", "[deform][baker]", float, double) {
+  using S = TestType;
+  const auto scene = random_scene<S>(12, 9);
+  // ds_k = 0.1 k - 0.4 over the 9 samples: median 0 at k = 4; a Gaussian-dependent shift on top.
+  auto rel = [](const Eigen::Ref<const Matrix3X<S>>& means, S t, DeformationOffsets<S>& out) {
+    out.set_zero(means.cols());
+    out.scale_offset = ScaleOffset::log;
+    for (Eigen::Index j = 0; j < means.cols(); ++j)
+      for (int a = 0; a < 3; ++a) out.ds(a, j) = S(0.8) * t - S(0.4) + S(0.01) * S(j % 3);
+  };
+  MedianBakeParams p;
+  p.samples = 9;
+  const auto b = bake_median(scene, rel, p);
+  for (std::size_t j = 0; j < scene.size(); ++j)
+    for (int a = 0; a < 3; ++a) {
+      INFO("Gaussian " << j << " axis " << a);
+      CHECK(b.log_scales[3 * j + std::size_t(a)] ==
+            Approx(scene.log_scales[3 * j + std::size_t(a)] + S(0.01) * S(j % 3)).margin(1e-5));
+    }
+  // A large negative offset stops at the scale floor instead of flipping sign.
+  auto shrink = [](const Eigen::Ref<const Matrix3X<S>>& means, S, DeformationOffsets<S>& out) {
+    out.set_zero(means.cols());
+    out.scale_offset = ScaleOffset::log;
+    out.ds.setConstant(S(-200));
+  };
+  p.scale_floor = 1e-6;
+  const auto f = bake_time_slice(scene, shrink, S(0.5), p);
+  CHECK(f.log_scales[4] == Approx(std::log(1e-6)).margin(1e-4));
 }

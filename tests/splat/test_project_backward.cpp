@@ -321,6 +321,34 @@ TEST_CASE("project_scene_vjp through DeformedSceneView: offsets, negative scales
   }
 }
 
+TEST_CASE("project_scene_vjp through DeformedSceneView with relative scale offsets", "[splat][project][grad]") {
+  std::mt19937 rng(78);
+  const Camerad cam = make_camera();
+  GaussianScened base = random_scene(rng, 5, 2);
+  std::normal_distribution<double> nd;
+  std::vector<double> dx(15), dq(20), ds(15);
+  for (auto& v : dx) v = 0.1 * nd(rng);
+  for (auto& v : dq) v = 0.2 * nd(rng);
+  for (auto& v : ds) v = 0.4 * nd(rng);
+  const auto w = random_weights(rng, 5);
+  auto view = [&]() { return DeformedSceneView<double>(base, dx.data(), dq.data(), ds.data(), ScaleOffset::log); };
+  double sc[3];
+  view().scale(2, sc);
+  CHECK(sc[1] == Approx(std::exp(base.log_scales[7] + ds[7])));
+  auto f = [&]() { return scene_loss(view(), cam, w); };
+  ProjectedSplats<double> fwd;
+  project_scene(view(), cam, ProjectionParams{}, fwd, nullptr, 1);
+  GaussianSceneGrad<double> g;
+  project_scene_vjp(view(), cam, ProjectionParams{}, fwd, w, g, Freeze{}, 2);
+  std::vector<double> v_ds(15);
+  view().scale_offset_gradients(g, v_ds.data());
+  check_group("v_ds (relative)", v_ds, fd_of(f, ds.data(), ds.size()));
+  GaussianSceneGrad<double> gb;
+  view().base_gradients(g, gb);
+  check_group("base log_scales (relative)", gb.log_scales, fd_of(f, base.log_scales.data(), base.log_scales.size()));
+  check_group("base means (relative)", gb.means, fd_of(f, base.means.data(), base.means.size()));
+}
+
 TEST_CASE("freeze flags: frozen groups untouched, the others unchanged", "[splat][project][grad]") {
   std::mt19937 rng(9);
   const Camerad cam = make_camera();

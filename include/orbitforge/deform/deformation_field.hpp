@@ -20,6 +20,18 @@
 // can return d/dx through the network too (v_means != nullptr); pass nullptr to
 // train as that method does.
 //
+// Scale: a camera estimator reconstructs in an arbitrary unit, and the network's
+// offsets, frequencies and learning rate are not scale-free (dx and ds are
+// lengths; sin(2^k x) has a period in scene units). The field therefore works in
+// a normalised frame: it sees x_n = (x - center) / unit and returns
+// dx = unit * dx_n, ds = unit * ds_n (dq is unit-free). The trainer sets
+// unit = camera extent / kFieldReferenceExtent, so every scene looks to the
+// network like one whose cameras span kFieldReferenceExtent, the scale the
+// published settings were tuned at (D-NeRF's scenes: cameras 4 units from the
+// object). Without it a scene 5x smaller than that (Middlebury's dino ring,
+// extent 0.77) saw its Gaussians grown by the fresh field's ds, pruned as too
+// large, and collapsed to a few hundred.
+//
 // Head initialisation: the original code keeps PyTorch's default init for the
 // heads and relies on a warm-up (3000 iterations rendering without the
 // deformation). Here the heads' weights and biases are scaled by head_init_scale
@@ -52,7 +64,8 @@ template <class Scalar>
 struct DeformationOffsets {
   Matrix3X<Scalar> dx;  // [3 x N]
   Matrix4X<Scalar> dq;  // [4 x N] (w, x, y, z) offsets added to the normalised quaternion
-  Matrix3X<Scalar> ds;  // [3 x N] offsets added to the activated scale exp(log s)
+  Matrix3X<Scalar> ds;  // [3 x N] scale offsets, combined with the scale as scale_offset says
+  ScaleOffset scale_offset = ScaleOffset::additive;
 
   Eigen::Index size() const { return dx.cols(); }
   void resize(Eigen::Index n) {
@@ -75,14 +88,20 @@ struct DeformationFieldParams {
   int x_frequencies = 10;
   int t_frequencies = 6;     // D-NeRF / synthetic setting of Deformable 3DGS (its real-scene setting is 10)
   double head_init_scale = 0.01;
+  // How ds changes a scale (splat/gaussians.hpp): relative by default, chosen by
+  // measurement (additive offsets collapsed or exploded the Gaussian count on real
+  // photographs); additive is Deformable 3D Gaussians' and the paper's form.
+  ScaleOffset scale_offset = ScaleOffset::log;
   std::uint32_t seed = 0;
 
-  // The published network: 8 x 256, input concatenated after hidden layer 4.
+  // The published network: 8 x 256, input concatenated after hidden layer 4,
+  // additive scale offsets.
   static DeformationFieldParams original() {
     DeformationFieldParams p;
     p.depth = 8;
     p.width = 256;
     p.skip_layer = 4;
+    p.scale_offset = ScaleOffset::additive;
     return p;
   }
   // The CPU default, chosen by measurement (bench_mlp; 50k Gaussians, float, CPU
@@ -101,6 +120,9 @@ struct DeformationFieldParams {
   // holdout against 37.94 for 4 x 128; 8 x 256 gets too few iterations to train.
   static DeformationFieldParams fast() { return DeformationFieldParams{}; }
 };
+
+// The camera extent (train/densify.hpp camera_extent) a normalised scene has.
+inline constexpr double kFieldReferenceExtent = 4.0;
 
 template <class Scalar>
 class DeformationField {
@@ -125,6 +147,16 @@ class DeformationField {
   }
 
   const DeformationFieldParams& params() const { return p_; }
+
+  // The normalised frame (see the top of this file): x_n = (x - center) / unit.
+  void set_frame(const Eigen::Matrix<Scalar, 3, 1>& center, Scalar unit) {
+    ensure(center.allFinite() && std::isfinite(double(unit)) && unit > Scalar(0),
+           "DeformationField::set_frame: need a finite centre and a positive unit, got unit ", unit);
+    center_ = center;
+    unit_ = unit;
+  }
+  const Eigen::Matrix<Scalar, 3, 1>& frame_center() const { return center_; }
+  Scalar frame_unit() const { return unit_; }
   const Mlp<Scalar>& mlp() const { return mlp_; }
   Mlp<Scalar>& mlp() { return mlp_; }
   int input_dims() const { return x_enc_.output_dims() + t_enc_.output_dims(); }
@@ -143,16 +175,24 @@ class DeformationField {
     t_enc_.encode(Eigen::Matrix<Scalar, 1, 1>::Constant(t), tcode);
     const int xr = x_enc_.output_dims();
     const int ranges = int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(resolve_threads(threads), n / 2048)));
+    const bool identity = unit_ == Scalar(1) && center_.isZero();
+    const Scalar inv_unit = Scalar(1) / unit_;
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
       const Eigen::Index b = n * Eigen::Index(r) / ranges, e = n * Eigen::Index(r + 1) / ranges;
-      x_enc_.encode(means.middleCols(b, e - b), ws.input.middleCols(b, e - b), 0);
+      if (identity) {
+        x_enc_.encode(means.middleCols(b, e - b), ws.input.middleCols(b, e - b), 0);
+      } else {
+        const Matrix3X<Scalar> xn = (means.middleCols(b, e - b).colwise() - center_) * inv_unit;
+        x_enc_.encode(xn, ws.input.middleCols(b, e - b), 0);
+      }
       ws.input.block(xr, b, t_enc_.output_dims(), e - b).colwise() = tcode;
     });
     mlp_.forward(ws.input, ws.mlp, ws.out, threads);
     out.resize(n);
-    out.dx = ws.out.topRows(3);
+    out.scale_offset = p_.scale_offset;
+    out.dx = ws.out.topRows(3) * unit_;
     out.dq = ws.out.middleRows(3, 4);
-    out.ds = ws.out.middleRows(7, 3);
+    out.ds = ws.out.middleRows(7, 3) * ds_unit();  // relative offsets have no unit
   }
 
   // in:  ws        from evaluate() (same field parameters)
@@ -166,22 +206,25 @@ class DeformationField {
     ensure(v_offsets.dx.cols() == n && v_offsets.dq.cols() == n && v_offsets.ds.cols() == n,
            "DeformationField::evaluate_vjp: gradients for ", v_offsets.dx.cols(), " Gaussians, evaluated ", n);
     if (ws.v_out.rows() != kOutputs || ws.v_out.cols() != n) ws.v_out.resize(kOutputs, n);
-    ws.v_out.topRows(3) = v_offsets.dx;
+    ws.v_out.topRows(3) = v_offsets.dx * unit_;
     ws.v_out.middleRows(3, 4) = v_offsets.dq;
-    ws.v_out.middleRows(7, 3) = v_offsets.ds;
+    ws.v_out.middleRows(7, 3) = v_offsets.ds * ds_unit();
     mlp_.backward(ws.input, ws.mlp, ws.v_out, v_params, v_means ? &ws.v_input : nullptr, threads);
     if (v_means) {
       if (v_means->cols() != n) v_means->resize(3, n);
       x_enc_.encode_vjp(ws.input, ws.v_input, *v_means, 0);
+      *v_means /= unit_;
     }
   }
 
   void save(std::ostream& os) const {
     binary_io::write_tag(os, kTag, sizeof(Scalar));
-    const std::int32_t ints[6] = {p_.depth, p_.width, p_.skip_layer, p_.x_frequencies, p_.t_frequencies,
-                                  std::int32_t(p_.seed)};
+    const std::int32_t ints[7] = {p_.depth,         p_.width, p_.skip_layer, p_.x_frequencies, p_.t_frequencies,
+                                  std::int32_t(p_.seed), std::int32_t(p_.scale_offset)};
     for (auto v : ints) binary_io::write(os, v);
     binary_io::write(os, p_.head_init_scale);
+    for (int k = 0; k < 3; ++k) binary_io::write(os, center_[k]);
+    binary_io::write(os, unit_);
     binary_io::write_array(os, parameters().data(), parameters().size());
     ensure(bool(os), "DeformationField::save: write failed");
   }
@@ -194,8 +237,15 @@ class DeformationField {
     p.x_frequencies = binary_io::read<std::int32_t>(is, "deformation x frequencies");
     p.t_frequencies = binary_io::read<std::int32_t>(is, "deformation t frequencies");
     p.seed = std::uint32_t(binary_io::read<std::int32_t>(is, "deformation seed"));
+    const auto mode = binary_io::read<std::int32_t>(is, "deformation scale offset");
+    ensure(mode == std::int32_t(ScaleOffset::additive) || mode == std::int32_t(ScaleOffset::log),
+           "DeformationField::load: unknown scale offset mode ", mode);
+    p.scale_offset = ScaleOffset(mode);
     p.head_init_scale = binary_io::read<double>(is, "deformation head scale");
     DeformationField f(p);
+    Eigen::Matrix<Scalar, 3, 1> c;
+    for (int k = 0; k < 3; ++k) c[k] = binary_io::read<Scalar>(is, "deformation frame centre");
+    f.set_frame(c, binary_io::read<Scalar>(is, "deformation frame unit"));
     auto w = binary_io::read_array<Scalar>(is, "deformation parameters");
     ensure(w.size() == f.parameter_count(), "DeformationField::load: ", w.size(), " parameters stored, the ",
            p.depth, "x", p.width, " network has ", f.parameter_count());
@@ -204,7 +254,8 @@ class DeformationField {
   }
 
  private:
-  static constexpr char kTag[9] = "OFDEFRM1";
+  static constexpr char kTag[9] = "OFDEFRM2";
+  Scalar ds_unit() const { return p_.scale_offset == ScaleOffset::log ? Scalar(1) : unit_; }
   static MlpParams mlp_params(const DeformationFieldParams& p) {
     ensure(p.x_frequencies >= 0 && p.t_frequencies >= 0, "DeformationField: negative frequency count");
     MlpParams m;
@@ -219,6 +270,8 @@ class DeformationField {
   DeformationFieldParams p_;
   FrequencyEncoding<Scalar> x_enc_, t_enc_;
   Mlp<Scalar> mlp_;
+  Eigen::Matrix<Scalar, 3, 1> center_ = Eigen::Matrix<Scalar, 3, 1>::Zero();
+  Scalar unit_ = Scalar(1);
 };
 
 // ---------------------------------------------------------------------------

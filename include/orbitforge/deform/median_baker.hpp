@@ -6,7 +6,9 @@
 //                                   (coordinate-wise; even count: the LOWER middle value)
 //   x~ = x + med dx
 //   q~ = normalize(normalize(q) + med dq)
-//   s~ = max(|exp(log s) + med ds|, eps_s),  stored as log s~
+//   s~ = max(|exp(log s) + med ds|, eps_s),  stored as log s~   (additive scale offsets)
+//   s~ = max(exp(log s + med ds), eps_s)                          (relative offsets,
+//        ScaleOffset::log: the median of s exp(ds_k) itself, as exp is monotone)
 //   opacity and SH copied from the canonical scene.
 //
 // The two ablation variants of the paper use the same conversion with the offsets
@@ -91,7 +93,7 @@ bool lower_median(Scalar* v, int n, Scalar& out, std::size_t& dropped) {
 // Returns true when the rotation fell back to normalize(q).
 template <class Scalar>
 bool write_static(const GaussianScene<Scalar>& c, std::size_t j, const Scalar* dx, const Scalar* dq, const Scalar* ds,
-                  Scalar scale_floor, GaussianScene<Scalar>& out) {
+                  ScaleOffset mode, Scalar scale_floor, GaussianScene<Scalar>& out) {
   for (int a = 0; a < 3; ++a) out.means[3 * j + a] = c.means[3 * j + a] + dx[a];
   Eigen::Map<const Eigen::Matrix<Scalar, 4, 1>> q(&c.rotations[4 * j]);
   const Scalar qn = q.norm();
@@ -108,8 +110,12 @@ bool write_static(const GaussianScene<Scalar>& c, std::size_t j, const Scalar* d
   }
   for (int a = 0; a < 4; ++a) out.rotations[4 * j + a] = r[a];
   for (int a = 0; a < 3; ++a) {
-    const Scalar s = std::exp(c.log_scales[3 * j + a]) + ds[a];
-    out.log_scales[3 * j + a] = std::log(std::max(std::abs(s), scale_floor));
+    if (mode == ScaleOffset::log) {
+      out.log_scales[3 * j + a] = std::max(c.log_scales[3 * j + a] + ds[a], std::log(scale_floor));
+    } else {
+      const Scalar s = std::exp(c.log_scales[3 * j + a]) + ds[a];
+      out.log_scales[3 * j + a] = std::log(std::max(std::abs(s), scale_floor));
+    }
   }
   bool finite = true;
   for (int a = 0; a < 3; ++a)
@@ -152,6 +158,7 @@ GaussianScene<Scalar> bake_median(const GaussianScene<Scalar>& canonical, Deform
   const int threads = resolve_threads(p.threads);
   constexpr std::size_t kBlock = 64;  // Gaussians per median task
   std::vector<std::size_t> dropped(std::size_t(threads), 0), fallbacks(std::size_t(threads), 0);
+  ScaleOffset mode = ScaleOffset::additive;
   for (std::size_t g0 = 0; g0 < n; g0 += chunk) {
     const std::size_t m = std::min(chunk, n - g0);
     Eigen::Map<const Matrix3X<Scalar>> means(canonical.means.data() + 3 * g0, 3, Eigen::Index(m));
@@ -160,6 +167,7 @@ GaussianScene<Scalar> bake_median(const GaussianScene<Scalar>& canonical, Deform
       deformation(means, t, off);
       ensure(off.dx.cols() == Eigen::Index(m) && off.dq.cols() == Eigen::Index(m) && off.ds.cols() == Eigen::Index(m),
              "bake_median: the deformation returned ", off.dx.cols(), " offsets for ", m, " Gaussians");
+      mode = off.scale_offset;
       for (std::size_t g = 0; g < m; ++g) {
         Scalar* s = &samples[g * 10 * std::size_t(T) + std::size_t(k)];
         const Eigen::Index gi = Eigen::Index(g);
@@ -177,7 +185,7 @@ GaussianScene<Scalar> bake_median(const GaussianScene<Scalar>& canonical, Deform
           ensure(d::lower_median(v, T, med[c], dropped[std::size_t(worker)]), "bake_median: Gaussian ", g0 + g,
                  ", offset coordinate ", c, ": all ", T, " deformation samples are non-finite");
         }
-        if (d::write_static(canonical, g0 + g, med, med + 3, med + 7, Scalar(p.scale_floor), out))
+        if (d::write_static(canonical, g0 + g, med, med + 3, med + 7, mode, Scalar(p.scale_floor), out))
           ++fallbacks[std::size_t(worker)];
       }
     });
@@ -222,7 +230,7 @@ GaussianScene<Scalar> bake_time_slice(const GaussianScene<Scalar>& canonical, De
       for (int c = 0; c < 10; ++c)
         ensure(std::isfinite(o[c]), "bake_time_slice: Gaussian ", g0 + g, ", offset coordinate ", c,
                " is non-finite at t = ", t);
-      if (d::write_static(canonical, g0 + g, o, o + 3, o + 7, Scalar(p.scale_floor), out)) ++fallbacks;
+      if (d::write_static(canonical, g0 + g, o, o + 3, o + 7, off.scale_offset, Scalar(p.scale_floor), out)) ++fallbacks;
     }
   }
   if (report) *report = BakeReport{0, fallbacks};

@@ -32,6 +32,15 @@ struct SyntheticInputParams {
   double drift_per_frame = 0.0005;  // slow radius/elevation drift, in radius units per frame
   int object_gaussians = 3000;
   int ground_gaussians = 2000;
+  // A textured wall around the whole orbit (radius backdrop_radius, in units of
+  // the orbit radius), so that every frame's background is cluttered, as in
+  // handheld photographs, instead of the renderer's plain background.
+  bool backdrop = false;
+  int backdrop_gaussians = 4000;
+  double backdrop_radius = 1.75;
+  // Multiplies every length (scene, cameras): the method must not depend on the
+  // arbitrary unit a camera estimator reconstructs in.
+  double world_scale = 1.0;
   unsigned seed = 7;
 };
 
@@ -109,18 +118,44 @@ SyntheticInput<Scalar> make_synthetic_input(const SyntheticInputParams& p = {}) 
                                     Scalar(0.95), rgb);
   }
 
+  if (p.backdrop) {
+    // Wall from below the floor to above the cameras: bands of colour in azimuth,
+    // a checker in height, flat Gaussians facing the orbit's axis.
+    const Scalar wall_r = Scalar(p.backdrop_radius * p.radius);
+    const Scalar z0 = Scalar(-0.5), z1 = Scalar(p.radius * 1.2);
+    const Scalar size = std::sqrt(2 * pi * wall_r * (z1 - z0) / Scalar(std::max(1, p.backdrop_gaussians)));
+    for (int i = 0; i < p.backdrop_gaussians; ++i) {
+      const Scalar az = (uni(rng) * 2 - 1) * pi, z = z0 + (z1 - z0) * uni(rng);
+      const Vec3 x(wall_r * std::cos(az), wall_r * std::sin(az), z);
+      const Quat q = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3(std::cos(az), std::sin(az), 0));
+      const int band = int(std::floor((az + pi) / (2 * pi) * 16));
+      const bool check = (band + int(std::floor(z / (size * 4)))) % 2 == 0;
+      const Scalar g = Scalar(0.25) + Scalar(0.5) * Scalar(band % 4) / Scalar(3);
+      const Vec3 rgb = check ? Vec3(g, Scalar(0.45), Scalar(1) - g) : Vec3(Scalar(0.9) - g / 2, g, Scalar(0.3));
+      synthetic_detail::push_gaussian(s, x, q, Vec3(size, size, size * Scalar(0.1)), Scalar(0.95), rgb);
+    }
+  }
+  if (p.world_scale != 1.0) {
+    ensure(p.world_scale > 0 && std::isfinite(p.world_scale), "make_synthetic_input: world_scale must be positive");
+    const Scalar w = Scalar(p.world_scale);
+    for (auto& v : s.means) v *= w;
+    for (auto& v : s.log_scales) v += std::log(w);
+    in.target *= w;
+  }
+
   // Cameras on the orbit; the recorded ones get noise and a slow drift.
   const Intrinsics<Scalar> k{Scalar(p.focal), Scalar(p.focal), Scalar(p.width) / 2, Scalar(p.height) / 2, p.width,
                              p.height};
   const Scalar elev = Constants<Scalar>::deg2rad(Scalar(p.elevation_deg));
   for (int f = 0; f < p.frames; ++f) {
     const Scalar az = Scalar(p.direction) * Constants<Scalar>::deg2rad(Scalar(p.arc_deg)) * f / Scalar(p.frames);
-    const Vec3 eye = in.target + Scalar(p.radius) * Vec3(std::cos(elev) * std::cos(az), std::cos(elev) * std::sin(az),
+    const Vec3 eye = in.target + Scalar(p.radius * p.world_scale) * Vec3(std::cos(elev) * std::cos(az), std::cos(elev) * std::sin(az),
                                                           std::sin(elev));
     in.true_cameras.push_back(Camera<Scalar>::look_at(eye, in.target, in.up, k));
 
-    const Scalar drift = Scalar(p.drift_per_frame) * f * Scalar(p.radius);
-    Vec3 noisy_eye = eye + Vec3(gauss(rng), gauss(rng), gauss(rng)) * Scalar(p.position_noise * p.radius);
+    const Scalar drift = Scalar(p.drift_per_frame) * f * Scalar(p.radius * p.world_scale);
+    Vec3 noisy_eye =
+        eye + Vec3(gauss(rng), gauss(rng), gauss(rng)) * Scalar(p.position_noise * p.radius * p.world_scale);
     noisy_eye += (eye - in.target).normalized() * drift + in.up * (drift * Scalar(0.5));
     Camera<Scalar> rec = Camera<Scalar>::look_at(noisy_eye, in.target, in.up, k);
     const Scalar rn = Constants<Scalar>::deg2rad(Scalar(p.rotation_noise_deg));

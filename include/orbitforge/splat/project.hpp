@@ -516,23 +516,27 @@ class SceneView {
 
 // The deformed state of a base scene, as Deformable 3D Gaussians renders it:
 //   mean = x + dx,  rotation = normalize(q) + dq  (normalised again by the projection),
-//   scale = exp(log s) + ds  (activated, any sign),  opacity and SH of the base.
+//   scale = exp(log s) + ds  (ScaleOffset::additive: activated, any sign) or
+//           exp(log s + ds)  (ScaleOffset::log),  opacity and SH of the base.
 // dx [N][3], dq [N][4], ds [N][3] are caller-owned arrays; a null pointer means zero.
-// The VJP w.r.t. this adaptor gives v_dx = grad.means, v_dq = grad.rotations,
-// v_ds = grad.log_scales (activated); base_gradients() chains to the base parameters.
+// The VJP w.r.t. this adaptor gives v_dx = grad.means, v_dq = grad.rotations and
+// the activated-scale gradient in grad.log_scales (scale_offset_gradients() turns
+// it into v_ds); base_gradients() chains to the base parameters.
 template <class Scalar>
 class DeformedSceneView {
  public:
   using scalar_type = Scalar;
   static constexpr ScaleMode scale_mode = ScaleMode::activated;
 
-  DeformedSceneView(const GaussianScene<Scalar>& base, const Scalar* dx, const Scalar* dq, const Scalar* ds)
-      : b_(base), dx_(dx), dq_(dq), ds_(ds) {
+  DeformedSceneView(const GaussianScene<Scalar>& base, const Scalar* dx, const Scalar* dq, const Scalar* ds,
+                    ScaleOffset scale_offset = ScaleOffset::additive)
+      : b_(base), dx_(dx), dq_(dq), ds_(ds), mode_(scale_offset) {
     base.check_consistent();
   }
 
   std::size_t size() const { return b_.size(); }
   int sh_degree() const { return b_.sh_degree; }
+  ScaleOffset scale_offset() const { return mode_; }
   void mean(std::size_t i, Scalar out[3]) const {
     for (int a = 0; a < 3; ++a) out[a] = b_.means[3 * i + a] + (dx_ ? dx_[3 * i + a] : Scalar(0));
   }
@@ -542,7 +546,10 @@ class DeformedSceneView {
     for (int a = 0; a < 4; ++a) out[a] = q[a] * inv + (dq_ ? dq_[4 * i + a] : Scalar(0));
   }
   void scale(std::size_t i, Scalar out[3]) const {
-    for (int a = 0; a < 3; ++a) out[a] = std::exp(b_.log_scales[3 * i + a]) + (ds_ ? ds_[3 * i + a] : Scalar(0));
+    for (int a = 0; a < 3; ++a) {
+      const Scalar l = b_.log_scales[3 * i + a], d = ds_ ? ds_[3 * i + a] : Scalar(0);
+      out[a] = mode_ == ScaleOffset::log ? std::exp(l + d) : std::exp(l) + d;
+    }
   }
   Scalar opacity_logit(std::size_t i) const { return b_.opacity_logits[i]; }
   Scalar sh(std::size_t i, int k, int c) const { return b_.sh[(i * std::size_t(k_) + std::size_t(k)) * 3 + c]; }
@@ -565,12 +572,29 @@ class DeformedSceneView {
       }
     }
     if (base_grad.log_scales.size() == 3 * n)
-      for (std::size_t j = 0; j < 3 * n; ++j) base_grad.log_scales[j] *= std::exp(b_.log_scales[j]);
+      for (std::size_t j = 0; j < 3 * n; ++j) {
+        // d s' / d log s = exp(log s), times exp(ds) for relative offsets (= s').
+        const Scalar d = (mode_ == ScaleOffset::log && ds_) ? ds_[j] : Scalar(0);
+        base_grad.log_scales[j] *= std::exp(b_.log_scales[j] + d);
+      }
+  }
+
+  // Gradient w.r.t. the scale offsets from the gradient w.r.t. this view's
+  // (activated) scales: v_ds = v_s' (additive) or v_s' s' (log). [3 x N].
+  void scale_offset_gradients(const GaussianSceneGrad<Scalar>& view_grad, Scalar* v_ds) const {
+    const std::size_t n = size();
+    ensure(view_grad.log_scales.size() == 3 * n, "DeformedSceneView: scale gradients for ",
+           view_grad.log_scales.size() / 3, " Gaussians, the view has ", n);
+    for (std::size_t j = 0; j < 3 * n; ++j)
+      v_ds[j] = mode_ == ScaleOffset::log
+                    ? view_grad.log_scales[j] * std::exp(b_.log_scales[j] + (ds_ ? ds_[j] : Scalar(0)))
+                    : view_grad.log_scales[j];
   }
 
  private:
   const GaussianScene<Scalar>& b_;
   const Scalar *dx_, *dq_, *ds_;
+  ScaleOffset mode_;
   std::size_t k_ = std::size_t(b_.sh_coefficients());
 };
 

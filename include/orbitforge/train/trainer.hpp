@@ -62,6 +62,7 @@ struct TrainFrame {
   Camera<Scalar> camera;
   Scalar time = 0;         // time code in [0, 1] (deformable training)
   std::string name;
+  int repeats = 1;         // times the frame is drawn per pass over the frames (sampling weight, >= 1)
 };
 
 // Settings with the published defaults (3DGS arguments/__init__.py; Deformable 3D
@@ -78,6 +79,7 @@ struct TrainParams {
   // budget, both times the scene extent (3DGS spatial_lr_scale).
   double position_lr_init = 1.6e-4;
   double position_lr_final = 1.6e-6;
+  int position_lr_steps = 0;        // the exponential decay reaches lr_final here (0 = the budget)
   double feature_lr = 2.5e-3;       // SH DC; higher SH coefficients use feature_lr / sh_rest_divisor
   double sh_rest_divisor = 20;
   double opacity_lr = 0.05;         // the 3DGS paper value (later 3DGS versions use 0.025)
@@ -101,10 +103,21 @@ struct TrainParams {
   // Deformable training.
   bool deformable = false;
   DeformationFieldParams field = DeformationFieldParams::fast();
+  // The field works in a frame normalised to the cameras' extent (see
+  // deform/deformation_field.hpp); false uses world units as published.
+  bool normalize_field = true;
   int warmup_iterations = 3000;      // per deform_reference_budget: no deformation before
   int deform_reference_budget = 40000;
   double deform_lr_init = 8e-4;      // position_lr_init * 5 (Deformable 3DGS), not scaled by the extent
-  double deform_lr_final = 8e-6;     // decays over the budget
+  double deform_lr_final = 8e-6;     // decays over deform_lr_steps
+  int deform_lr_steps = 0;           // 0 = the budget
+  // Annealed noise on the time code (Deformable 3D Gaussians, real scenes): each
+  // deforming step uses t + n * time_noise * max(0, 1 - it / time_noise_steps) / r,
+  // n ~ N(0, 1), r = frames left in the current pass over the frames, this one
+  // included (the backend divides by the size of its shrinking camera stack).
+  // 0 = off.
+  double time_noise = 0;
+  int time_noise_steps = 20000;
 };
 
 struct TrainProgress {
@@ -122,6 +135,8 @@ struct TrainProgress {
   // deformation network forward, backward and its Adam step (0 when not deforming).
   double render_ms = 0, loss_ms = 0, backward_ms = 0, field_ms = 0, adam_ms = 0, densify_ms = 0;
   RenderStats render;  // the renderer's own breakdown of this iteration's render and backward
+  // The last densification step (cumulative counts since the trainer started).
+  std::size_t cloned = 0, split = 0, pruned = 0;
 };
 
 // Schedules resolved for a budget.
@@ -161,6 +176,7 @@ class Trainer {
     ensure(scene_.sh_degree <= params.max_sh_degree, "Trainer: initial scene has SH degree ", scene_.sh_degree,
            ", above max_sh_degree ", params.max_sh_degree);
     std::vector<Camera<Scalar>> cams;
+    std::size_t draws = 0;
     for (std::size_t i = 0; i < frames_.size(); ++i) {
       const auto& f = frames_[i];
       ensure(f.image.channels == 3 && f.image.width == f.camera.intrinsics.width &&
@@ -170,6 +186,9 @@ class Trainer {
              " camera (need RGB of the camera's size)");
       ensure(f.camera.is_finite(), "Trainer: frame ", i, " (", f.name, ") has a non-finite camera");
       ensure(std::isfinite(double(f.time)), "Trainer: frame ", i, " (", f.name, ") has a non-finite time code");
+      ensure(f.repeats >= 1 && f.repeats <= 1000, "Trainer: frame ", i, " (", f.name, ") has repeats ", f.repeats,
+             " (need 1..1000)");
+      draws += std::size_t(f.repeats);
       cams.push_back(f.camera);
     }
     extent_ = frames_.size() > 1 ? camera_extent(cams) : Scalar(0);
@@ -188,9 +207,14 @@ class Trainer {
     stats_.reset(n);
     if (params.deformable) {
       field_ = std::make_unique<DeformationField<Scalar>>(params.field);
+      if (params.normalize_field) {
+        typename Camera<Scalar>::Vec3 mean = Camera<Scalar>::Vec3::Zero();
+        for (const auto& c : cams) mean += c.center();
+        field_->set_frame(mean / Scalar(cams.size()), extent_ / Scalar(kFieldReferenceExtent));
+      }
       g_field_ = field_adam_.add_group("deformation", field_->parameter_count(), 1, Scalar(0));
     }
-    order_.resize(frames_.size());
+    order_.resize(draws);
     cursor_ = order_.size();  // shuffle on first use
   }
 
@@ -253,9 +277,10 @@ class Trainer {
       const std::size_t n = scene_.size();
       const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
       lap();
-      field_->evaluate(means, frame.time, field_ws_, offsets_, threads);
+      field_->evaluate(means, frame.time + time_noise(it), field_ws_, offsets_, threads);
       field_ms = lap();
-      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data());
+      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data(),
+                                           offsets_.scale_offset);
       out = &renderer_.render(view, frame.camera);
       last_.render_ms = lap();
       loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
@@ -266,7 +291,7 @@ class Trainer {
       v_offsets_.resize(Eigen::Index(n));
       v_offsets_.dx = Eigen::Map<const Matrix3X<Scalar>>(vg.means.data(), 3, Eigen::Index(n));
       v_offsets_.dq = Eigen::Map<const Matrix4X<Scalar>>(vg.rotations.data(), 4, Eigen::Index(n));
-      v_offsets_.ds = Eigen::Map<const Matrix3X<Scalar>>(vg.log_scales.data(), 3, Eigen::Index(n));
+      view.scale_offset_gradients(vg, v_offsets_.ds.data());
       v_field_.assign(field_->parameter_count(), Scalar(0));
       field_->evaluate_vjp(field_ws_, v_offsets_, v_field_.data(), nullptr, threads);
       view.base_gradients(vg, base_grad_);
@@ -320,7 +345,8 @@ class Trainer {
       const std::size_t n = scene_.size();
       const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
       field_->evaluate(means, time, field_ws_, offsets_, params_.threads);
-      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data());
+      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data(),
+                                           offsets_.scale_offset);
       return renderer_.render(view, camera).color;
     }
     return renderer_.render(SceneView<Scalar>(scene_), camera).color;
@@ -408,7 +434,7 @@ class Trainer {
     }
     auto order = binary_io::read_array<std::size_t>(is, "frame order");
     const auto cursor = binary_io::read<std::uint64_t>(is, "frame cursor");
-    ensure(order.size() == frames_.size() && cursor <= order.size(), "checkpoint: inconsistent frame order");
+    ensure(order.size() == order_.size() && cursor <= order.size(), "checkpoint: inconsistent frame order");
     for (auto o : order) ensure(o < frames_.size(), "checkpoint: frame index ", o, " out of range");
     DensifyStats<Scalar> stats;
     stats.grad_sum = binary_io::read_array<double>(is, "densify grad_sum");
@@ -461,20 +487,30 @@ class Trainer {
     ExponentialLr pos;
     pos.lr_init = params_.position_lr_init * double(extent_);
     pos.lr_final = params_.position_lr_final * double(extent_);
-    pos.max_steps = params_.iterations;
+    pos.max_steps = params_.position_lr_steps > 0 ? params_.position_lr_steps : params_.iterations;
     adam_.set_lr(g_means_, Scalar(pos(it)));
     if (field_) {
       ExponentialLr f;
       f.lr_init = params_.deform_lr_init;
       f.lr_final = params_.deform_lr_final;
-      f.max_steps = params_.iterations;
+      f.max_steps = params_.deform_lr_steps > 0 ? params_.deform_lr_steps : params_.iterations;
       field_adam_.set_lr(g_field_, Scalar(f(it)));
     }
   }
 
+  Scalar time_noise(int it) {
+    if (!(params_.time_noise > 0)) return Scalar(0);
+    const double anneal = std::max(0.0, 1.0 - double(it) / double(std::max(1, params_.time_noise_steps)));
+    const double remaining = double(order_.size() - cursor_ + 1);
+    std::normal_distribution<double> n(0.0, 1.0);
+    return Scalar(n(rng_) * params_.time_noise * anneal / remaining);
+  }
+
   std::size_t next_frame() {
     if (cursor_ >= order_.size()) {
-      for (std::size_t i = 0; i < order_.size(); ++i) order_[i] = i;
+      std::size_t k = 0;
+      for (std::size_t i = 0; i < frames_.size(); ++i)
+        for (int r = 0; r < frames_[i].repeats; ++r) order_[k++] = i;
       std::shuffle(order_.begin(), order_.end(), rng_);
       cursor_ = 0;
     }
@@ -532,6 +568,9 @@ class Trainer {
   void densify_now(bool size_prune) {
     const DensifyPlan plan =
         densify_and_prune(scene_, stats_, params_.densify_params, extent_, size_prune, rng_);
+    last_.cloned += plan.cloned;
+    last_.split += plan.split;
+    last_.pruned += plan.pruned;
     // Nothing left to train: say so rather than carry on rendering the background.
     ensure(scene_.size() > 0, "Trainer: densification at iteration ", iteration_,
            " pruned every Gaussian (schedule densifying every ", schedule_.densify.densify_interval,
