@@ -137,6 +137,37 @@ TEST_CASE("a gradient exactly at the threshold densifies; below does not", "[tra
   CHECK(plan.appended_from == std::vector<std::size_t>{0});
 }
 
+TEST_CASE("a Gaussian budget takes the largest gradients first and never overflows", "[train][densify]") {
+  // Ten Gaussians: 0..5 small (clone, +1 each), 6..9 large (split into 2, +1 each).
+  GaussianScene<double> g;
+  g.resize(10, 0);
+  for (std::size_t i = 0; i < 10; ++i) set_gaussian<double>(g, i, double(i), i < 6 ? 0.05 : 0.5, 0.5);
+  DensifyStats<double> st;
+  st.reset(10);
+  std::vector<double> grad(10);
+  for (std::size_t i = 0; i < 10; ++i) grad[i] = 0.001 * double(1 + (i * 7) % 10);  // all above the threshold
+  st.add_view(grad, std::vector<int>(10, 1));
+  DensifyParams p;
+  p.max_gaussians = 14;  // room for 4 more
+  std::mt19937 rng(1);
+  GaussianScene<double> a = g;
+  const auto plan = densify_and_prune(a, st, p, 10.0, false, rng);
+  CHECK(a.size() == 14);
+  // The four largest gradients: i with (7 i) % 10 in {9, 8, 7, 6} -> i = 7, 4, 1, 8.
+  CHECK(plan.cloned == 2);  // 1 and 4
+  CHECK(plan.split == 2);   // 7 and 8
+  CHECK(plan.keep[7] == 0);
+  CHECK(plan.keep[8] == 0);
+  // No budget: every candidate densifies.
+  GaussianScene<double> b = g;
+  densify_and_prune(b, st, DensifyParams{}, 10.0, false, rng);
+  CHECK(b.size() == 20);
+  // A full budget adds nothing.
+  p.max_gaussians = 10;
+  GaussianScene<double> c = g;
+  CHECK(densify_and_prune(c, st, p, 10.0, false, rng).new_size() == 10);
+}
+
 TEST_CASE("split children follow the parent's rotated, scaled distribution", "[train][densify]") {
   // Many identical parents, all split: children offsets should have mean 0 and
   // covariance R diag(s^2) R^T with s = the parent's scales.

@@ -55,6 +55,11 @@ struct DensifyParams {
   double max_world_scale = 0.1;     // size prune: max scale > max_world_scale * extent
   double max_screen_radius = 20;    // size prune: largest 2D radius seen > this (pixels)
   double reset_opacity = 0.01;      // opacity reset: opacity = min(opacity, this)
+  // A Gaussian budget (0 = none, as 3DGS): a densification step adds at most as
+  // many Gaussians as keep the count within it, taking the candidates with the
+  // largest mean gradient first. Few training views can otherwise clone a scene
+  // up to about one Gaussian per pixel (375k for six 320x240 photographs).
+  std::size_t max_gaussians = 0;
 };
 
 // When things happen, in 1-based iterations (3DGS train.py).
@@ -235,10 +240,25 @@ DensifyPlan densify_and_prune(GaussianScene<Scalar>& scene, const DensifyStats<S
   DensifyPlan plan;
   plan.keep.assign(n, 1);
   std::vector<std::size_t> clones, splits;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!(stats.mean_grad(i) >= params.grad_threshold)) continue;
-    (max_scale(scene, i) <= dense_limit ? clones : splits).push_back(i);
+  std::vector<std::size_t> candidates;
+  for (std::size_t i = 0; i < n; ++i)
+    if (stats.mean_grad(i) >= params.grad_threshold) candidates.push_back(i);
+  if (params.max_gaussians > 0) {
+    // Largest gradients first (ties by index, so the choice is deterministic),
+    // while the net growth stays within the budget.
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [&](std::size_t a, std::size_t b) { return stats.mean_grad(a) > stats.mean_grad(b); });
+    std::size_t room = params.max_gaussians > n ? params.max_gaussians - n : 0, taken = 0;
+    for (std::size_t i : candidates) {
+      const std::size_t grows = max_scale(scene, i) <= dense_limit ? 1 : std::size_t(params.split_count - 1);
+      if (grows > room) break;
+      room -= grows;
+      ++taken;
+    }
+    candidates.resize(taken);
+    std::sort(candidates.begin(), candidates.end());
   }
+  for (std::size_t i : candidates) (max_scale(scene, i) <= dense_limit ? clones : splits).push_back(i);
   plan.cloned = clones.size();
   plan.split = splits.size();
 
