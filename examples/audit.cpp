@@ -53,6 +53,8 @@ int main(int argc, char** argv) {
     PipelineParams p;
     int width = 0, height = 0;
     bool report_only = false;
+    int holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
+    p.compare_g1_paper = p.oracle_bound = true;
     cli::ArgWalker a("audit", argc, argv);
     bool more = a.next();
     while (more) {
@@ -69,9 +71,19 @@ int main(int argc, char** argv) {
       if (f == "--frames") frames = a.value();
       else if (f == "--completion") {
         p.completion = a.value();
-        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none")
-          throw cli::UsageError("audit: --completion must be external, oracle or none, got '" + p.completion + "'");
-      } else if (f == "--width") width = int(cli::parse_int("audit", f, a.value(), 8));
+        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
+            p.completion != "perturbed")
+          throw cli::UsageError("audit: --completion must be external, oracle, perturbed or none, got '" +
+                                p.completion + "'");
+      } else if (f == "--holdout-every") holdout_every = int(cli::parse_int("audit", f, a.value(), 0));
+      else if (f == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
+      else if (f == "--g1-data") p.g1_data = parse_g1_data(a.value());
+      else if (f == "--g1-arc-renders") p.g1_arc_renders = true;
+      else if (f == "--g1-deformable") p.g1_deformable = true;
+      else if (f == "--g1-static") p.g1_deformable = false;
+      else if (f == "--g1-source-repeats") p.g1_source_repeats = int(cli::parse_int("audit", f, a.value(), 1));
+      else if (f == "--g1-completion-repeats") p.g1_completion_repeats = int(cli::parse_int("audit", f, a.value(), 1));
+      else if (f == "--width") width = int(cli::parse_int("audit", f, a.value(), 8));
       else if (f == "--height") height = int(cli::parse_int("audit", f, a.value(), 8));
       else if (f == "--iters") p.iters_g0 = p.iters_g1 = int(cli::parse_int("audit", f, a.value(), 1));
       else if (f == "--threads") p.threads = int(cli::parse_int("audit", f, a.value(), 0));
@@ -128,7 +140,8 @@ int main(int argc, char** argv) {
           // The same loading and settings as full_pipeline --colmap.
           PipelineInput<S> input = load_colmap_input<S>(dir, frames.empty() ? std::string("1-33") : frames,
                                                         width > 0 ? width : 512, height > 0 ? height : 512);
-          input.background = {{1, 1, 1}};  // the recorded videos have white backgrounds
+          withhold_every(input, holdout_every);
+          choose_background(input);
           run_pipeline(input, p, dest);
         } catch (const PipelineStopped& e) {
           failed.error = e.what();

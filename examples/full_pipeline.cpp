@@ -54,6 +54,7 @@ int main(int argc, char** argv) {
   PipelineParams p;
   int width = 0, height = 0;
   bool iters_g1_set = false;
+  int holdout_every = 0;
   std::array<double, 3> background{{-1, -1, -1}};
   try {
     for (int i = 1; i < argc; ++i) {
@@ -66,8 +67,10 @@ int main(int argc, char** argv) {
       else if (f == "--frames") frames = value();
       else if (f == "--completion") {
         p.completion = value();
-        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none")
-          throw UsageError("full_pipeline: --completion must be external, oracle or none, got '" + p.completion + "'");
+        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
+            p.completion != "perturbed")
+          throw UsageError("full_pipeline: --completion must be external, oracle, perturbed or none, got '" +
+                           p.completion + "'");
       } else if (f == "--prompt") p.prompt = value();
       else if (f == "--width") width = int(to_long(f, value(), 8));
       else if (f == "--height") height = int(to_long(f, value(), 8));
@@ -81,6 +84,13 @@ int main(int argc, char** argv) {
       else if (f == "--threads") p.threads = int(to_long(f, value(), 0));
       else if (f == "--seed") p.seed = unsigned(to_long(f, value(), 0));
       else if (f == "--static") p.deformable = false;
+      else if (f == "--holdout-every") holdout_every = int(to_long(f, value(), 0));
+      else if (f == "--g1-data") p.g1_data = parse_g1_data(value());
+      else if (f == "--g1-arc-renders") p.g1_arc_renders = true;
+      else if (f == "--g1-deformable") p.g1_deformable = true;
+      else if (f == "--g1-static") p.g1_deformable = false;
+      else if (f == "--compare-g1-paper") p.compare_g1_paper = true;
+      else if (f == "--oracle-bound") p.oracle_bound = true;
       else if (f == "--g1-random-init") p.g1_from_gmed0 = false;
       else if (f == "--quiet") p.progress = false;
       else if (f == "--background") {
@@ -124,9 +134,11 @@ int main(int argc, char** argv) {
       if (out.empty()) throw UsageError("full_pipeline: --out DIR is required with --colmap");
       input = load_colmap_input<S>(colmap, frames.empty() ? std::string("1-33") : frames, width > 0 ? width : 512,
                                    height > 0 ? height : 512);
-      input.background = {{1, 1, 1}};  // the recorded videos have white backgrounds
     }
-    if (background[0] >= 0) input.background = background;
+    withhold_every(input, holdout_every);
+    const BackgroundEstimate bg = choose_background(input, background[0] >= 0 ? &background : nullptr);
+    std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
+                 bg.reason.c_str());
     std::fprintf(stderr, "full_pipeline: %s -> %s (completion: %s)\n", input.description.c_str(), out.c_str(),
                  p.completion.c_str());
     const nlohmann::json r = run_pipeline(input, p, out);

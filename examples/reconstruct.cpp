@@ -32,6 +32,7 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/metrics/image.hpp"
+#include "orbitforge/pipeline/input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "cli.hpp"
@@ -58,6 +59,7 @@ struct Args {
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
+  bool background_set = false;  // else estimated from the frames' borders
   DeformationFieldParams field = DeformationFieldParams::fast();
 };
 
@@ -105,6 +107,7 @@ Args parse(int argc, char** argv) {
     else if (f == "--field") a.field = parse_field(value());
     else if (f == "--background") {
       a.background = cli::parse_rgb("reconstruct", f, value());
+      a.background_set = true;
     } else if (f == "--out") a.out = value();
     else if (f == "-h" || f == "--help") {
       std::cout << kUsage;
@@ -119,44 +122,34 @@ Args parse(int argc, char** argv) {
 struct Dataset {
   std::vector<TrainFrame<S>> train, holdout;
   std::vector<S> points, colors;
+  std::size_t points_total = 0;
+  BackgroundEstimate background;
+  std::vector<SkippedFrame> skipped;
 };
 
+// The frames of --frames (video frame numbers: the images of images/ in name
+// order), those without a COLMAP camera skipped; every K-th frame of the range
+// held out. Points: those at least two training frames observed.
 Dataset load(const Args& a) {
-  namespace fs = std::filesystem;
-  const std::string model_dir = find_colmap_model_dir(a.colmap);
-  const ColmapModel model = read_colmap_model(model_dir);
-  auto cams = colmap_frame_cameras<S>(model);
-  if (!a.frames.empty()) cams = select_frames(cams, parse_frame_range(a.frames));
-  const int n = int(cams.size());
-  ensure(n >= 1, a.colmap, ": no frames selected");
-  const fs::path images = fs::path(a.colmap) / "images";
-  ensure(fs::is_directory(images), a.colmap, ": no images/ folder next to the COLMAP model");
+  PipelineInput<S> in = load_colmap_input<S>(a.colmap, a.frames.empty() ? std::string("1-") : a.frames, a.width,
+                                             a.height);
+  withhold_every(in, a.holdout_every);
   Dataset d;
-  for (int i = 1; i <= n; ++i) {
-    const auto& fc = cams[std::size_t(i - 1)];
-    ensure(fc.valid, a.colmap, ": image ", fc.name, " has no valid pose");
-    TrainFrame<S> f;
-    f.name = fc.name;
-    f.time = n > 1 ? S(i - 1) / S(n - 1) : S(0);
-    const Image<S> img = read_image<S>((images / fc.name).string());
-    const auto& k = fc.camera.intrinsics;
-    ensure(img.width == k.width && img.height == k.height, (images / fc.name).string(), ": image is ", img.width,
-           "x", img.height, ", its COLMAP camera is ", k.width, "x", k.height);
-    f.image = (img.width == a.width && img.height == a.height) ? img
-                                                                : resize_image(img, a.width, a.height,
-                                                                               ResizeFilter::area);
-    f.camera = fc.camera;
-    f.camera.intrinsics = k.resized(a.width, a.height);
-    const bool held = a.holdout_every > 0 && i % a.holdout_every == 0;
-    (held ? d.holdout : d.train).push_back(std::move(f));
+  d.background = choose_background(in, a.background_set ? &a.background : nullptr);
+  d.skipped = in.source_skipped;
+  for (int f : in.source) {
+    TrainFrame<S> t;
+    t.name = in.cameras[std::size_t(f)].name;
+    t.time = S(in.time_code(f));
+    t.image = in.images[std::size_t(f)];
+    t.camera = in.cameras[std::size_t(f)].camera;
+    (in.is_withheld(f) ? d.holdout : d.train).push_back(std::move(t));
   }
-  ensure(!d.train.empty(), a.colmap, ": every selected frame is held out");
-  for (const auto& p : model.points) {
-    for (int c = 0; c < 3; ++c) {
-      d.points.push_back(S(p.xyz[c]));
-      d.colors.push_back(S(p.rgb[std::size_t(c)]) / S(255));
-    }
-  }
+  ensure(!d.train.empty(), a.colmap, ": every selected frame is held out or has no camera");
+  const SourcePoints<S> sp = source_points(in);
+  d.points = sp.points;
+  d.colors = sp.colors;
+  d.points_total = sp.total;
   return d;
 }
 
@@ -193,14 +186,17 @@ Eval evaluate_static(const GaussianScene<S>& scene, const std::vector<TrainFrame
 int run(const Args& a) {
   namespace fs = std::filesystem;
   const Dataset d = load(a);
-  std::fprintf(stderr, "reconstruct: %zu training frames, %zu held out, %zu COLMAP points, %dx%d%s\n",
-               d.train.size(), d.holdout.size(), d.points.size() / 3, a.width, a.height,
-               a.deformable ? ", deformable" : "");
+  std::fprintf(stderr, "reconstruct: %zu training frames, %zu held out, %zu skipped, %zu of %zu COLMAP points, %dx%d%s\n",
+               d.train.size(), d.holdout.size(), d.skipped.size(), d.points.size() / 3, d.points_total, a.width,
+               a.height, a.deformable ? ", deformable" : "");
+  for (const auto& s : d.skipped) std::fprintf(stderr, "reconstruct: skipped %s: %s\n", s.name.c_str(), s.reason.c_str());
+  std::fprintf(stderr, "reconstruct: background %.3f,%.3f,%.3f: %s\n", d.background.color[0], d.background.color[1],
+               d.background.color[2], d.background.reason.c_str());
   TrainParams p;
   p.iterations = a.iters;
   p.seed = a.seed;
   p.threads = a.threads;
-  p.background = a.background;
+  p.background = d.background.color;
   p.deformable = a.deformable;
   p.field = a.field;
   p.min_densify_interval = a.min_densify_interval;
@@ -230,9 +226,11 @@ int run(const Args& a) {
                    std::string(std::size_t(filled), '#').c_str(), std::string(std::size_t(width - filled), '.').c_str(),
                    pr.iteration, pr.iterations, pr.loss, pr.psnr, pr.gaussians, 1e3 * pr.seconds_per_iteration);
     } else if (pr.iteration % line_every == 0 || pr.iteration == 1) {
-      std::fprintf(stderr, "iteration %d/%d loss %.5f psnr %.3f gaussians %zu sec/it %.4f elapsed %.1f s\n",
-                   pr.iteration, pr.iterations, pr.loss, pr.psnr, pr.gaussians, pr.seconds_per_iteration,
-                   pr.elapsed_seconds);
+      std::fprintf(stderr,
+                   "iteration %d/%d loss %.5f psnr %.3f gaussians %zu (cloned %zu split %zu pruned %zu) sec/it %.4f "
+                   "elapsed %.1f s\n",
+                   pr.iteration, pr.iterations, pr.loss, pr.psnr, pr.gaussians, pr.cloned, pr.split, pr.pruned,
+                   pr.seconds_per_iteration, pr.elapsed_seconds);
     }
     const bool stop = a.minutes > 0 && train_seconds >= 60.0 * a.minutes;
     if (a.eval_every > 0 && !d.holdout.empty() && (pr.iteration % a.eval_every == 0 || stop)) {
@@ -249,6 +247,8 @@ int run(const Args& a) {
   m["iterations"] = trainer.iteration();
   m["seconds"] = train_seconds;
   m["gaussians"] = trainer.scene().size();
+  m["background"] = {{"color", d.background.color}, {"reason", d.background.reason}};
+  m["points"] = {{"kept", d.points.size() / 3}, {"total", d.points_total}};
   if (a.deformable) m["field"] = std::to_string(a.field.depth) + "x" + std::to_string(a.field.width);
   m["train_psnr"] = evaluate(trainer, d.train, a.threads, false).psnr;
   if (!d.holdout.empty()) {
@@ -263,7 +263,8 @@ int run(const Args& a) {
     bp.samples = a.median_samples;
     bp.threads = a.threads;
     out_scene = bake_median(trainer.scene(), FieldDeformation<S>(*trainer.field(), a.threads), bp);
-    if (!d.holdout.empty()) m["holdout_psnr_baked"] = evaluate_static(out_scene, d.holdout, a.background, a.threads).psnr;
+    if (!d.holdout.empty())
+      m["holdout_psnr_baked"] = evaluate_static(out_scene, d.holdout, d.background.color, a.threads).psnr;
   } else {
     out_scene = trainer.scene();
   }

@@ -128,6 +128,7 @@ void require_same_models(const ColmapModel& a, const ColmapModel& b) {
     CHECK(a.points[i].xyz == b.points[i].xyz);
     CHECK(a.points[i].rgb == b.points[i].rgb);
     CHECK(a.points[i].error == b.points[i].error);
+    CHECK(a.points[i].track_images == b.points[i].track_images);
   }
 }
 
@@ -231,6 +232,8 @@ TEST_CASE("COLMAP binary model equals the same model in text", "[io][colmap]") {
   CHECK(b.cameras.at(3).model == "SIMPLE_RADIAL");
   CHECK(b.images.at(13).name == "c.png");
   CHECK(b.points[1].rgb == std::array<std::uint8_t, 3>{{255, 0, 128}});
+  CHECK(t.points[0].track_images == std::vector<int>{11, 13});  // which images saw each point
+  CHECK(b.points[1].track_images == std::vector<int>{11});
   require_same_models(b, t);
 
   const auto fb = colmap_frame_cameras<double>(b);

@@ -65,6 +65,7 @@ struct ColmapPoint {
   Eigen::Vector3d xyz = Eigen::Vector3d::Zero();
   std::array<std::uint8_t, 3> rgb{{0, 0, 0}};
   double error = 0;
+  std::vector<int> track_images;  // IMAGE_ID of each observation (TRACK[]), in file order
 };
 
 struct ColmapModel {
@@ -237,8 +238,11 @@ inline std::vector<ColmapPoint> parse_colmap_points3D_text(std::string_view text
       p.rgb[k] = static_cast<std::uint8_t>(v);
     }
     p.error = parse_double_token(tok[7], at, "ERROR");
-    for (std::size_t i = 8; i < tok.size(); ++i) parse_int_token<std::int64_t>(tok[i], at, "track element");
-    points.push_back(p);
+    for (std::size_t i = 8; i < tok.size(); i += 2) {
+      p.track_images.push_back(parse_int_token<int>(tok[i], at, "track IMAGE_ID"));
+      parse_int_token<std::int64_t>(tok[i + 1], at, "track POINT2D_IDX");
+    }
+    points.push_back(std::move(p));
   }
   return points;
 }
@@ -322,8 +326,15 @@ inline std::vector<ColmapPoint> parse_colmap_points3D_binary(std::string_view by
     p.error = in.read<double>("point error");
     const auto track = in.read<std::uint64_t>("track length");
     in.check_count(track, 4 + 4, "track element");
-    in.skip(static_cast<std::size_t>(track) * 8, "track");
-    points.push_back(p);
+    p.track_images.reserve(static_cast<std::size_t>(track));
+    for (std::uint64_t k = 0; k < track; ++k) {
+      const auto image_id = in.read<std::uint32_t>("track image id");
+      in.read<std::uint32_t>("track point2D index");
+      ensure(image_id <= std::uint32_t(std::numeric_limits<int>::max()), file_name, ": point record ", i,
+             " (byte offset ", record_offset, "): track image id ", image_id, " is too large");
+      p.track_images.push_back(int(image_id));
+    }
+    points.push_back(std::move(p));
   }
   ensure(in.at_end(), file_name, ": ", in.remaining(), " unexpected bytes after the last point record (byte offset ",
          in.offset(), ")");

@@ -103,15 +103,29 @@ inline const std::vector<Column>& columns() {
       {"circle_rmse", "circle RMSE", "Orbit diagnostics", "/diagnostics/circle_rmse", 4},
       {"normal_rule", "normal rule", "Orbit diagnostics", "/diagnostics/normal_rule", 0},
       {"source_span_deg", "source span (deg)", "Orbit diagnostics", "/diagnostics/source_span_deg", 1},
-      {"R0_supported_psnr", "R0 sup PSNR", "Quality", "/quality/R0/supported/psnr", 2},
-      {"R0_supported_ssim", "R0 sup SSIM", "Quality", "/quality/R0/supported/ssim", 3},
-      {"R1_supported_psnr", "R1 sup PSNR", "Quality", "/quality/R1/supported/psnr", 2},
-      {"R1_supported_ssim", "R1 sup SSIM", "Quality", "/quality/R1/supported/ssim", 3},
+      {"R0_supported_psnr", "R0 sup PSNR (withheld)", "Quality", "/quality/R0/supported_heldout/psnr", 2},
+      {"R1_supported_psnr", "R1 sup PSNR (withheld)", "Quality", "/quality/R1/supported_heldout/psnr", 2},
+      {"R1_paper_supported_psnr", "R1 paper-data sup PSNR (withheld)", "Quality",
+       "/quality/R1_paper/supported_heldout/psnr", 2},
+      {"bound_supported_psnr", "bound sup PSNR (withheld)", "Quality", "/quality/bound/supported_heldout/psnr", 2},
       {"R0_gap_psnr", "R0 gap PSNR", "Quality", "/quality/R0/gap_heldout/psnr", 2},
-      {"R0_gap_ssim", "R0 gap SSIM", "Quality", "/quality/R0/gap_heldout/ssim", 3},
       {"R1_gap_psnr", "R1 gap PSNR", "Quality", "/quality/R1/gap_heldout/psnr", 2},
-      {"R1_gap_ssim", "R1 gap SSIM", "Quality", "/quality/R1/gap_heldout/ssim", 3},
+      {"R1_paper_gap_psnr", "R1 paper-data gap PSNR", "Quality", "/quality/R1_paper/gap_heldout/psnr", 2},
+      {"bound_gap_psnr", "bound gap PSNR", "Quality", "/quality/bound/gap_heldout/psnr", 2},
       {"gain_gap_psnr", "gain (R1 - R0 gap PSNR)", "Quality", "", 2},
+      {"R0_gap_ssim", "R0 gap SSIM", "Quality", "/quality/R0/gap_heldout/ssim", 3},
+      {"R1_gap_ssim", "R1 gap SSIM", "Quality", "/quality/R1/gap_heldout/ssim", 3},
+      {"R0_train_psnr", "R0 sup PSNR (training frames)", "Fit to training frames",
+       "/quality/R0/supported_train/psnr", 2},
+      {"R1_train_psnr", "R1 sup PSNR (training frames)", "Fit to training frames",
+       "/quality/R1/supported_train/psnr", 2},
+      {"R1_paper_train_psnr", "R1 paper-data sup PSNR (training frames)", "Fit to training frames",
+       "/quality/R1_paper/supported_train/psnr", 2},
+      {"bound_train_psnr", "bound sup PSNR (training frames)", "Fit to training frames",
+       "/quality/bound/supported_train/psnr", 2},
+      {"points_kept", "sparse points kept", "Input", "/points/kept", 0},
+      {"points_dropped", "sparse points dropped", "Input", "/points/dropped", 0},
+      {"background", "background", "Input", "/background/color", 0},
       {"loop_endpoint_l1", "loop-endpoint L1 (0-255)", "Completion", "/completion/loop_endpoint_l1", 2},
       {"anchor_error_mean", "anchor index error mean", "Completion", "/completion/anchor_index_error/mean", 2},
       {"anchor_error_max", "anchor index error max", "Completion", "/completion/anchor_index_error/max", 0},
@@ -122,6 +136,8 @@ inline const std::vector<Column>& columns() {
       {"seconds_g1", "g1 (s)", "Stage seconds", "/stages/g1", 1},
       {"seconds_report", "report (s)", "Stage seconds", "/stages/report", 1},
       {"total_seconds", "total (s)", "Stage seconds", "/total_seconds", 1},
+      {"seconds_g1_paper", "g1 paper-data (s, comparison)", "Stage seconds", "/comparison_seconds/g1_paper", 1},
+      {"seconds_bound", "bound (s, comparison)", "Stage seconds", "/comparison_seconds/bound", 1},
       {"static_frame_varying_adjacent_l1", "frame-varying adj L1", "Static proxy",
        "/static_proxy/variants/frame_varying/adjacent_l1", 3, "/static_proxy/frame_varying/adjacent_l1"},
       {"static_frame_varying_adjacent_l1_p95", "frame-varying adj L1 P95", "Static proxy",
@@ -145,10 +161,12 @@ inline const std::vector<Column>& columns() {
 }
 
 inline const std::vector<std::string>& sections() {
-  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Completion",
-                                             "Stage seconds", "Static proxy"};
+  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Fit to training frames",
+                                             "Completion", "Input", "Stage seconds", "Static proxy"};
   return s;
 }
+
+inline std::string format_number(double d, int digits);
 
 // The value at a JSON pointer, or null when any step is missing or of the wrong type.
 inline nlohmann::json lookup(const nlohmann::json& j, const std::string& pointer) {
@@ -162,7 +180,16 @@ inline nlohmann::json lookup(const nlohmann::json& j, const std::string& pointer
       if (!std::isfinite(d)) return nullptr;
     }
     if (v.is_primitive()) return v;
-    return nullptr;  // objects / arrays are not cells
+    if (v.is_array() && !v.empty() && v.size() <= 4) {  // a small vector, e.g. a colour: "r,g,b"
+      std::string joined;
+      for (const auto& e : v) {
+        if (!e.is_number()) return nullptr;
+        if (!joined.empty()) joined += ",";
+        joined += format_number(e.get<double>(), 3);
+      }
+      return joined;
+    }
+    return nullptr;  // objects and other arrays are not cells
   } catch (const nlohmann::json::exception&) {
     return nullptr;  // e.g. an array where an object was expected
   }

@@ -44,6 +44,7 @@ struct VhatFrame {
   Camera<Scalar> camera;
   double position = 0;  // canonical view index (fractional for off-orbit cameras), for order and time code
   std::string origin;   // "R0 view 12", "recorded 046.png", "completed 0123.png"
+  bool from_r0 = false; // an R0 render of the supported arc (else a completion frame)
 };
 
 // Position of a recorded camera on the canonical orbit, in views (0 .. N-1, fractional).
@@ -87,6 +88,8 @@ struct CompletionContext {
   std::function<bool(int)> r0_rendered;  // whether R0 exists for that view
   std::string folder;                    // the provider's own folder (created by the pipeline)
   std::string prompt;
+  std::string negative_prompt;           // what the video model should avoid (may be empty)
+  bool condition_on_r0 = true;           // the request lists R0's known frames (else sparse anchors only)
 };
 
 template <class Scalar>
@@ -180,7 +183,7 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
     fs::create_directories(dir / "anchors");
     fs::create_directories(dir / "completed");
     nlohmann::json cond = nlohmann::json::array(), anchors = nlohmann::json::array();
-    for (int j = 0; j < L.frames; ++j) {
+    for (int j = 0; j < L.frames && ctx.condition_on_r0; ++j) {
       const int v = L.synthetic_to_canonical[std::size_t(j)];
       if (!L.known[std::size_t(j)] || !ctx.r0_rendered(v)) continue;
       const std::string file = "conditioning/" + frame_name(j);
@@ -189,15 +192,19 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
     }
     const auto& in = *ctx.input;
     for (const auto& a : L.anchors) {
-      const int input_index = ctx.fit->source[std::size_t(a.source_index)].input_index;
+      // fit.source indexes the source list; in.source maps it to the input's frames.
+      const int frame = in.source[std::size_t(ctx.fit->source[std::size_t(a.source_index)].input_index)];
+      if (in.is_withheld(frame)) continue;  // withheld frames reach no model
       const std::string file = "anchors/" + frame_name(a.synthetic);
-      write_png((dir / file).string(), in.images[std::size_t(input_index)]);
+      write_png((dir / file).string(), in.images[std::size_t(frame)]);
       anchors.push_back({{"synthetic", a.synthetic}, {"canonical", a.canonical}, {"name", a.name}, {"file", file}});
     }
+    const int width = ctx.fit->intrinsics.width, height = ctx.fit->intrinsics.height;  // the canonical views
     nlohmann::json m = {{"frames", L.frames},
-                        {"width", in.width},
-                        {"height", in.height},
+                        {"width", width},
+                        {"height", height},
                         {"prompt", ctx.prompt},
+                        {"negative_prompt", ctx.negative_prompt},
                         {"start", L.start},
                         {"arc_end", L.arc_end},
                         {"synthetic_to_canonical", L.synthetic_to_canonical},
@@ -231,8 +238,7 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
       const std::string path = completed_path(ctx.folder, e.synthetic).string();
       Image<Scalar> img = to_rgb(read_image<Scalar>(path));
       ensure(img.width > 0 && img.height > 0, path, ": empty image");
-      if (img.width != in.width || img.height != in.height)
-        img = resize_image(img, in.width, in.height, ResizeFilter::area);
+      if (img.width != width || img.height != height) img = resize_image(img, width, height, ResizeFilter::area);
       VhatFrame<Scalar> f;
       f.image = std::move(img);
       f.camera = ctx.fit->cameras[std::size_t(e.canonical)];
@@ -255,13 +261,5 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
     return std::filesystem::path(folder) / "completed" / frame_name(j);
   }
 };
-
-template <class Scalar>
-std::unique_ptr<CompletionProvider<Scalar>> make_completion_provider(const std::string& name) {
-  if (name == "none") return std::make_unique<NoCompletion<Scalar>>();
-  if (name == "oracle") return std::make_unique<OracleCompletion<Scalar>>();
-  if (name == "external") return std::make_unique<ExternalCompletion<Scalar>>();
-  fail("unknown completion provider '", name, "' (use external, oracle or none)");
-}
 
 }  // namespace orbitforge

@@ -1,56 +1,158 @@
 #pragma once
-// The recorded input of the pipeline: every recorded frame of a video (name
-// order), its estimated camera and its image at the working resolution, plus
-// which frames play the source video. Loaders for a COLMAP dataset folder
-// (images/ + sparse/0/) and for the embedded synthetic input.
+// The recorded input of the pipeline: every frame of a video (name order of its
+// image folder, whether or not the camera estimator gave it a camera), the
+// estimated cameras, the images at the working resolution, which frames play
+// the source video, and the sparse points with the frames that observed them.
+// Loaders for a COLMAP dataset folder (images/ + sparse/0/) and for the embedded
+// synthetic input.
 //
-// Frames outside the source range are never trained on by G0; the oracle
-// completion and the held-out evaluation use them (pipeline/completion.hpp).
+// Frame numbers are video frames: a source range "1-33" means the first 33
+// images of the folder. Frames of the range without an estimated camera are
+// left out (source_skipped says which and why) and do not shift the others; a
+// frame's time code follows its number, (frame - first) / (last - first) over
+// the range, so a missing frame leaves a gap in time.
+//
+// Evidence: only what the source frames show may reach the method. Frames
+// outside the source range are used by the oracle completion provider and for
+// held-out evaluation only (pipeline/completion.hpp); sparse points reach a
+// reconstruction only when at least `min_observations` source frames that it
+// trains on observed them (source_points), since a camera estimator run on the
+// source video alone could not have triangulated the others.
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/hash.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/frames.hpp"
+#include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/background.hpp"
 
 namespace orbitforge {
 
+struct SkippedFrame {
+  int frame = 0;        // index into PipelineInput::cameras
+  std::string name, reason;
+};
+
 template <class Scalar>
 struct PipelineInput {
-  std::vector<FrameCamera<Scalar>> cameras;  // all recorded frames, name order; intrinsics at width x height
-  std::vector<Image<Scalar>> images;         // parallel to cameras, [H][W][3] in [0, 1]
-  std::vector<int> source;                   // indices into cameras: the source video
-  std::vector<Scalar> points, colors;        // optional sparse points [N][3] and RGB in [0, 1]
+  std::vector<FrameCamera<Scalar>> cameras;  // every frame, name order; valid = has an estimated camera;
+                                             // intrinsics at width x height
+  std::vector<Image<Scalar>> images;         // parallel to cameras, [H][W][3] in [0, 1]; empty without a camera
+  int source_first = 0, source_last = -1;    // the source range (indices into cameras, inclusive)
+  std::vector<int> source;                   // frames of the range with a camera: the successful-camera set
+  std::vector<SkippedFrame> source_skipped;  // frames of the range left out, and why
+  std::vector<int> withheld;                 // source frames no reconstruction trains on (scored only)
+  // Sparse points [N][3], RGB [N][3] in [0, 1], and for each point the frames
+  // (indices into cameras) that observed it. Without tracks, nothing tells which
+  // frames saw a point, and source_points() uses none of them.
+  std::vector<Scalar> points, colors;
+  std::vector<std::vector<int>> point_frames;
   int width = 0, height = 0;
   std::string description;                   // where it came from (for the report)
   std::array<double, 3> background{{0, 0, 0}};
+  std::string background_reason = "default";
+
+  bool is_withheld(int frame) const { return std::find(withheld.begin(), withheld.end(), frame) != withheld.end(); }
+
+  // Time code of a frame of the source range: its place in the range.
+  double time_code(int frame) const {
+    const int span = source_last - source_first;
+    return span > 0 ? std::min(1.0, std::max(0.0, double(frame - source_first) / double(span))) : 0.0;
+  }
 };
 
-// FNV-1a 64-bit, used for the stages' input/settings hashes.
-inline std::uint64_t fnv1a(const void* data, std::size_t n, std::uint64_t h = 1469598103934665603ull) {
-  const auto* p = static_cast<const unsigned char*>(data);
-  for (std::size_t i = 0; i < n; ++i) {
-    h ^= p[i];
-    h *= 1099511628211ull;
-  }
-  return h;
-}
-inline std::uint64_t fnv1a(const std::string& s, std::uint64_t h = 1469598103934665603ull) {
-  return fnv1a(s.data(), s.size(), h);
+// Withholds every k-th frame of the source range (by frame number within the
+// range, 1-based: frames k, 2k, ...) from every reconstruction; they are scored
+// as supported views no reconstruction saw. k = 0 withholds nothing.
+template <class Scalar>
+void withhold_every(PipelineInput<Scalar>& in, int k) {
+  ensure(k == 0 || k >= 2, "withhold_every: k must be 0 (none) or at least 2, got ", k);
+  in.withheld.clear();
+  if (k == 0) return;
+  for (int f : in.source)
+    if ((f - in.source_first + 1) % k == 0) in.withheld.push_back(f);
 }
 
-inline std::string hex64(std::uint64_t h) {
-  std::ostringstream os;
-  os << std::hex << h;
-  return os.str();
+// The source frames a reconstruction trains on: the source minus the withheld.
+template <class Scalar>
+std::vector<int> training_source(const PipelineInput<Scalar>& in) {
+  std::vector<int> t;
+  for (int f : in.source)
+    if (!in.is_withheld(f)) t.push_back(f);
+  return t;
+}
+
+template <class Scalar>
+struct SourcePoints {
+  std::vector<Scalar> points, colors;  // the kept points, [N][3]
+  std::size_t total = 0, kept = 0, dropped = 0;
+  std::string rule;
+};
+
+// The sparse points that at least `min_observations` training source frames
+// observed (a track is counted once per frame).
+template <class Scalar>
+SourcePoints<Scalar> source_points(const PipelineInput<Scalar>& in, int min_observations = 2) {
+  SourcePoints<Scalar> r;
+  r.total = in.points.size() / 3;
+  r.rule = "kept when at least " + std::to_string(min_observations) +
+           " source frames used for training observed the point";
+  if (r.total == 0) return r;
+  if (in.point_frames.size() != r.total) {
+    r.dropped = r.total;
+    r.rule = "dropped: the input does not say which frames observed its points";
+    return r;
+  }
+  std::vector<char> training(in.cameras.size(), 0);
+  for (int f : training_source(in)) training[std::size_t(f)] = 1;
+  std::vector<int> seen;
+  for (std::size_t i = 0; i < r.total; ++i) {
+    seen.clear();
+    for (int f : in.point_frames[i])
+      if (f >= 0 && std::size_t(f) < training.size() && training[std::size_t(f)]) seen.push_back(f);
+    std::sort(seen.begin(), seen.end());
+    const auto distinct = std::unique(seen.begin(), seen.end()) - seen.begin();
+    if (distinct < min_observations) continue;
+    for (int c = 0; c < 3; ++c) {
+      r.points.push_back(in.points[3 * i + std::size_t(c)]);
+      r.colors.push_back(in.colors[3 * i + std::size_t(c)]);
+    }
+  }
+  r.kept = r.points.size() / 3;
+  r.dropped = r.total - r.kept;
+  return r;
+}
+
+// Sets in.background from the borders of the training source frames
+// (train/background.hpp), unless `override_color` is given (e.g. --background).
+template <class Scalar>
+BackgroundEstimate choose_background(PipelineInput<Scalar>& in, const std::array<double, 3>* override_color = nullptr,
+                                     const BackgroundParams& bp = {}) {
+  BackgroundEstimate e;
+  if (override_color) {
+    e.color = *override_color;
+    e.reason = "given by the caller (--background)";
+  } else {
+    std::vector<const Image<Scalar>*> frames;
+    for (int f : training_source(in)) frames.push_back(&in.images[std::size_t(f)]);
+    e = estimate_background(frames, bp);
+  }
+  in.background = e.color;
+  in.background_reason = e.reason;
+  return e;
 }
 
 // A hash of everything in the input that results depend on.
@@ -69,17 +171,49 @@ std::uint64_t input_hash(const PipelineInput<Scalar>& in) {
     for (int r = 0; r < 3; ++r) os << ' ' << c.camera.t[r];
     os << '\n';
   }
-  for (int s : in.source) os << s << ' ';
+  os << "range " << in.source_first << ' ' << in.source_last << " source";
+  for (int s : in.source) os << ' ' << s;
+  os << " withheld";
+  for (int s : in.withheld) os << ' ' << s;
+  os << '\n';
   std::uint64_t h = fnv1a(os.str());
   for (const auto& img : in.images) h = fnv1a(img.data.data(), img.data.size() * sizeof(Scalar), h);
   h = fnv1a(in.points.data(), in.points.size() * sizeof(Scalar), h);
   h = fnv1a(in.colors.data(), in.colors.size() * sizeof(Scalar), h);
+  for (const auto& t : in.point_frames) h = fnv1a(t.data(), t.size() * sizeof(int), h);
   return h;
 }
 
+// Selects the source range over the input's frames (by position in name order)
+// and fills source / source_skipped. Checks the range against the frame count.
+template <class Scalar>
+void select_source(PipelineInput<Scalar>& in, const std::string& range_text) {
+  const FrameRange r = parse_frame_range(range_text.empty() ? std::string("1-") : range_text);
+  const int n = int(in.cameras.size());
+  ensure(r.first <= n, "frame range ", range_text, ": first frame ", r.first, " is beyond the ", n,
+         " frames of the input");
+  const int last = r.last < 0 ? n : r.last;
+  ensure(last <= n, "frame range ", range_text, ": last frame ", last, " is beyond the ", n, " frames of the input");
+  in.source_first = r.first - 1;
+  in.source_last = last - 1;
+  in.source.clear();
+  in.source_skipped.clear();
+  for (int i = in.source_first; i <= in.source_last; ++i) {
+    const auto& fc = in.cameras[std::size_t(i)];
+    if (!fc.valid)
+      in.source_skipped.push_back({i, fc.name, "no estimated camera (the camera estimator did not register it)"});
+    else if (in.images[std::size_t(i)].empty())
+      in.source_skipped.push_back({i, fc.name, "no image"});
+    else
+      in.source.push_back(i);
+  }
+}
+
 // A COLMAP dataset folder (images/ and sparse/0/, or a model folder whose parent
-// holds images/). `source` selects the source frames (1-based, name order); every
-// registered frame's image is loaded and resized to width x height.
+// holds images/). Frames are the image files of images/ in name order, with a
+// camera when the model registered them. `source_range` selects the source
+// frames (1-based frame numbers, e.g. "1-33"); every registered frame's image is
+// loaded and resized to width x height (intrinsics rescaled).
 template <class Scalar>
 PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range, int width,
                                         int height) {
@@ -87,37 +221,71 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   ensure(width >= 8 && height >= 8, "load_colmap_input: working size ", width, "x", height, " is too small");
   const std::string model_dir = find_colmap_model_dir(dir);
   const ColmapModel model = read_colmap_model(model_dir);
-  PipelineInput<Scalar> in;
-  in.width = width;
-  in.height = height;
-  in.cameras = colmap_frame_cameras<Scalar>(model);
-  ensure(!in.cameras.empty(), dir, ": the COLMAP model has no images");
-  const FrameRange r = parse_frame_range(source_range.empty() ? std::string("1-") : source_range);
-  const auto selected = select_frames(in.cameras, r);  // checks the range against the frame count
-  const int first = r.first - 1;
-  for (int i = 0; i < int(selected.size()); ++i) in.source.push_back(first + i);
   fs::path images = fs::path(dir) / "images";
   if (!fs::is_directory(images)) images = fs::path(model_dir).parent_path().parent_path() / "images";
   ensure(fs::is_directory(images), dir, ": no images/ folder next to the COLMAP model");
+  const std::vector<FrameCamera<Scalar>> registered = colmap_frame_cameras<Scalar>(model);
+  ensure(!registered.empty(), dir, ": the COLMAP model has no images");
+
+  PipelineInput<Scalar> in;
+  in.width = width;
+  in.height = height;
+  // Frames: every image of the folder; the model's cameras attached by name.
+  std::map<std::string, const FrameCamera<Scalar>*> by_name;
+  for (const auto& fc : registered) by_name[fc.name] = &fc;
+  for (const std::string& name : list_image_files(images.string())) {
+    FrameCamera<Scalar> fc;
+    fc.name = name;
+    const auto it = by_name.find(name);
+    if (it != by_name.end()) {
+      fc = *it->second;
+      by_name.erase(it);
+    } else {
+      fc.valid = false;
+    }
+    in.cameras.push_back(std::move(fc));
+  }
+  for (const auto& [name, fc] : by_name) {
+    (void)fc;
+    fail((images / name).string(), ": in the COLMAP model but its image is missing");
+  }
+  // Frames without a camera keep the intrinsics of the model's first camera (never used to render).
+  for (auto& fc : in.cameras)
+    if (!fc.valid) fc.camera.intrinsics = registered.front().camera.intrinsics;
+
   in.images.resize(in.cameras.size());
   for (std::size_t i = 0; i < in.cameras.size(); ++i) {
     auto& fc = in.cameras[i];
+    const auto k = fc.camera.intrinsics;
+    fc.camera.intrinsics = k.resized(width, height);
     if (!fc.valid) continue;
     const std::string path = (images / fc.name).string();
-    ensure(fs::exists(path), path, ": frame ", i + 1, " (", fc.name, ") is in the COLMAP model but its image is missing");
     const Image<Scalar> img = to_rgb(read_image<Scalar>(path));
-    const auto& k = fc.camera.intrinsics;
     ensure(img.width == k.width && img.height == k.height, path, ": image is ", img.width, "x", img.height,
            ", its COLMAP camera is ", k.width, "x", k.height);
     in.images[i] =
         (img.width == width && img.height == height) ? img : resize_image(img, width, height, ResizeFilter::area);
-    fc.camera.intrinsics = k.resized(width, height);
+  }
+  select_source(in, source_range);
+
+  // Points with the frames that observed them.
+  std::map<int, int> frame_of_image;
+  {
+    std::map<std::string, int> frame_of_name;
+    for (std::size_t i = 0; i < in.cameras.size(); ++i) frame_of_name[in.cameras[i].name] = int(i);
+    for (const auto& [id, im] : model.images) frame_of_image[id] = frame_of_name.at(im.name);
   }
   for (const auto& p : model.points) {
+    std::vector<int> frames;
+    for (int image_id : p.track_images) {
+      const auto it = frame_of_image.find(image_id);
+      if (it != frame_of_image.end()) frames.push_back(it->second);
+    }
     for (int c = 0; c < 3; ++c) {
       in.points.push_back(Scalar(p.xyz[c]));
       in.colors.push_back(Scalar(p.rgb[std::size_t(c)]) / Scalar(255));
     }
+    in.point_frames.push_back(std::move(frames));
   }
   in.description = "colmap " + dir + " frames " + (source_range.empty() ? std::string("all") : source_range);
   return in;
@@ -139,10 +307,10 @@ PipelineInput<Scalar> synthetic_pipeline_input(const SyntheticInputParams& p, in
   for (const auto& cam : syn.true_cameras) in.images.push_back(r.render(SceneView<Scalar>(syn.scene), cam).color);
   for (auto& img : in.images)
     for (auto& v : img.data) v = std::min(Scalar(1), std::max(Scalar(0), v));
-  for (int i = 0; i < p.source_frames; ++i) in.source.push_back(i);
+  select_source(in, "1-" + std::to_string(p.source_frames));
   std::ostringstream os;
   os << "synthetic (" << p.frames << " frames, source 1-" << p.source_frames << ", " << p.width << "x" << p.height
-     << ", seed " << p.seed << ")";
+     << ", seed " << p.seed << (p.backdrop ? ", textured backdrop" : "") << ")";
   in.description = os.str();
   return in;
 }

@@ -1,0 +1,86 @@
+#pragma once
+// Settings of the whole method (run_pipeline, pipeline.hpp) and the exception
+// that pauses it while an external completion is pending.
+#include <functional>
+#include <string>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/geometry/completion_layout.hpp"
+#include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/pipeline/perturbed_completion.hpp"
+#include "orbitforge/pipeline/progress.hpp"
+#include "orbitforge/train/trainer.hpp"
+
+namespace orbitforge {
+
+// What the second reconstruction G1 trains on.
+enum class G1Data {
+  // V_hat as published: R0's renders on the supported arc at the canonical
+  // cameras, and the completion frames on the gap.
+  paper,
+  // The source frames G0 trained on, at their estimated cameras, and the
+  // completion frames on the gap (R0's renders only with g1_arc_renders).
+  source,
+};
+
+inline const char* g1_data_name(G1Data d) { return d == G1Data::paper ? "paper" : "source"; }
+
+inline G1Data parse_g1_data(const std::string& s) {
+  if (s == "paper") return G1Data::paper;
+  if (s == "source") return G1Data::source;
+  fail("G1 data '", s, "': expected paper or source");
+}
+
+struct PipelineParams {
+  OrbitParams orbit;                // views, elevation offset, ... (its width/height: see canonical_width)
+  int canonical_width = 0, canonical_height = 0;  // canonical render grid; 0 = the input's working size
+  LayoutParams layout;
+  std::string completion = "oracle";  // external | oracle | perturbed | none
+  PerturbParams perturb;            // strengths of the "perturbed" provider
+  bool request_conditioning = true; // external request: R0's known frames as conditioning (else sparse anchors only)
+  std::string negative_prompt;      // written into the external request's manifest
+  std::string prompt;               // original text; the video prompt is make_prompt(prompt)
+  // Per reconstruction, chosen by measurement for 512x512 inputs (docs/audit.md).
+  int iters_g0 = 3000, iters_g1 = 3000;
+  bool deformable = true;
+  int median_samples = 128;         // MedianGS T_m
+  bool g1_from_gmed0 = true;        // initialise G1 from Gmed0 (else like G0: points / random)
+  // G1 (and the bound) static or deformable. Deformable G1 is the paper's: its
+  // time code is the orbit position, so each Gaussian is seen during only part
+  // of [0, 1], and the MedianGS bake takes medians over mostly unconstrained
+  // times (docs/audit.md measures what that costs).
+  bool g1_deformable = false;
+  G1Data g1_data = G1Data::source;  // G1's training set (see G1Data)
+  bool g1_arc_renders = false;      // with G1Data::source: add R0's arc renders too
+  int g1_source_repeats = 1;        // sampling weights (TrainFrame::repeats) of source frames ...
+  int g1_completion_repeats = 1;    // ... and of completion frames
+  // Comparisons for audits (each one more reconstruction; not part of the method):
+  bool compare_g1_paper = false;    // also train G1 on the paper's V_hat (stage g1_paper)
+  bool oracle_bound = false;        // train the oracle bound (stage bound; recorded inputs only)
+  int render_stride = 1;            // R0 / R1 at every K-th canonical view
+  bool static_proxy_diagnostics = true;  // G0 rendered frame-varying / fixed slice / MedianGS on the orbit
+  std::size_t init_points = 20000;  // random initial cloud when the input has no points
+  int checkpoint_every = 500;       // partial training checkpoints (0 = none)
+  // The published densification schedule scaled to a short budget densifies every
+  // few iterations (interval 100 * iters / 30000), on statistics of a handful of
+  // views, and the Gaussian count explodes (5000 -> 170000 in 200 of 1000
+  // iterations at 96x96). Short budgets keep at least this interval.
+  int min_densify_interval = 50;
+  int threads = 0;
+  unsigned seed = 0;
+  double min_source_arc_deg = 20;   // refuse sources that cover less
+  bool progress = true;             // report progress (through on_progress, or lines on stderr)
+  ProgressSink on_progress;         // where progress goes when `progress` (default: lines on stderr)
+  // Called after every training iteration (label "G0" / "G1"); may throw to stop
+  // a run, which then resumes from the last partial checkpoint.
+  std::function<void(const std::string& label, int iteration)> on_iteration;
+  TrainParams train;                // other training settings (iterations, mode, seed, threads, background are set here)
+};
+
+// The external provider is waiting for completed frames.
+class PipelineStopped : public Error {
+ public:
+  explicit PipelineStopped(const std::string& what) : Error(what) {}
+};
+
+}  // namespace orbitforge

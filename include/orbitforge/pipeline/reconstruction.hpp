@@ -1,0 +1,144 @@
+#pragma once
+// The pipeline's reconstructions (G0, G1 and the oracle bound): training that
+// resumes, the MedianGS bake, the initial scene, and renders along the orbit.
+//
+// Resuming: a training run saves dir/partial.bin every checkpoint_every
+// iterations and dir/checkpoint.bin when it ends, each with a .key file naming
+// the stage key it belongs to (the checkpoint files carry their own checksum).
+// A run whose finished checkpoint matches its key does not train again: an
+// interrupt after training costs only the work after it (bake, renders).
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "orbitforge/deform/median_baker.hpp"
+#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/image_io.hpp"
+#include "orbitforge/pipeline/run_state.hpp"
+#include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/init.hpp"
+#include "orbitforge/train/trainer.hpp"
+
+namespace orbitforge {
+
+namespace reconstruction_detail {
+namespace fs = std::filesystem;
+
+// Loads `file` into the trainer when `file`.key holds `key`; false (with a
+// message) when the file is absent, belongs to other settings, or is damaged.
+template <class Scalar>
+bool try_resume(Trainer<Scalar>& trainer, const std::string& file, const std::string& key, const std::string& label,
+                const std::function<void(const std::string&)>& log) {
+  std::error_code ec;
+  const std::string key_file = file + ".key";
+  if (!fs::exists(file, ec) || !fs::exists(key_file, ec)) return false;
+  if (read_file_bytes(key_file) != key) return false;
+  try {
+    trainer.load_checkpoint(file);
+    return true;
+  } catch (const Error& e) {
+    log(label + ": " + fs::path(file).filename().string() + " not usable (" + e.what() + "); not resuming from it");
+    return false;
+  }
+}
+}  // namespace reconstruction_detail
+
+// Trains `frames` from `init` (resuming when it can), saves dir/checkpoint.bin
+// and returns the MedianGS bake (the trained scene itself for static training,
+// or when training ended within the deformation warm-up).
+template <class Scalar>
+GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames,
+                                           GaussianScene<Scalar> init, const TrainParams& tp, const std::string& dir,
+                                           const std::string& key, const std::string& label) {
+  namespace fs = std::filesystem;
+  using reconstruction_detail::try_resume;
+  const PipelineParams& p = run.params;
+  fs::create_directories(dir);
+  const std::string partial = (fs::path(dir) / "partial.bin").string();
+  const std::string final_ckpt = (fs::path(dir) / "checkpoint.bin").string();
+  Trainer<Scalar> trainer(frames, std::move(init), tp);
+  if (try_resume(trainer, final_ckpt, key, label, run.log) && trainer.iteration() == tp.iterations) {
+    run.log(label + ": training had finished; reusing its checkpoint");
+  } else if (try_resume(trainer, partial, key, label, run.log)) {
+    run.log(label + ": resuming at iteration " + std::to_string(trainer.iteration()));
+  }
+  const bool trained_now = trainer.iteration() < tp.iterations;
+  while (trainer.iteration() < tp.iterations) {
+    const TrainProgress& pr = trainer.step();
+    char detail[96];
+    std::snprintf(detail, sizeof(detail), "psnr %.2f  %zu gaussians", pr.psnr, pr.gaussians);
+    run.progress(label, pr.iteration, tp.iterations, detail);
+    if (p.checkpoint_every > 0 && pr.iteration % p.checkpoint_every == 0 && pr.iteration < tp.iterations) {
+      trainer.save_checkpoint(partial);
+      write_file_atomic(partial + ".key", key);
+    }
+    if (p.on_iteration) p.on_iteration(label, pr.iteration);
+  }
+  if (trained_now) {
+    trainer.save_checkpoint(final_ckpt);
+    write_file_atomic(final_ckpt + ".key", key);
+  }
+  std::error_code ec;
+  fs::remove(partial, ec);
+  fs::remove(partial + ".key", ec);
+  if (tp.deformable && trainer.field() && trainer.deforming_at(trainer.iteration())) {
+    MedianBakeParams mp;
+    mp.samples = p.median_samples;
+    mp.threads = p.threads;
+    FieldDeformation<Scalar> d(*trainer.field(), p.threads);
+    return bake_median(trainer.scene(), d, mp);
+  }
+  return trainer.scene();
+}
+
+// The starting scene of a reconstruction: the sparse points the training source
+// frames observed (PipelineInput: source_points), or, when there are too few, a
+// random cloud in the training cameras' view volume.
+template <class Scalar>
+GaussianScene<Scalar> initial_scene(const PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames) {
+  const auto& in = *run.input;
+  InitParams ip;
+  ip.seed = run.params.seed;
+  const SourcePoints<Scalar> sp = source_points(in);
+  if (sp.kept >= 4) return init_from_points(sp.points, sp.colors, ip);
+  std::vector<Camera<Scalar>> cams;
+  for (const auto& f : frames) cams.push_back(f.camera);
+  Scalar extent = cams.size() > 1 ? camera_extent(cams) : Scalar(1);
+  if (!(extent > Scalar(0))) extent = Scalar(1);
+  ip.random_points = run.params.init_points;
+  return init_random(cams, extent, ip);
+}
+
+// Renders `scene` at the rendered canonical views into run.out/folder/NNNN.png
+// and returns the written files (relative to run.out).
+template <class Scalar>
+std::vector<std::string> render_orbit_views(PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
+                                            const std::string& folder, const std::string& label) {
+  namespace fs = std::filesystem;
+  using pipeline_detail::view_file;
+  fs::create_directories(fs::path(run.out) / folder);
+  Renderer<Scalar> r = run.renderer();
+  const auto views = pipeline_detail::rendered_views(run.fit.views, run.params.render_stride);
+  std::vector<std::string> files;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const int v = views[i];
+    const std::string rel = folder + "/" + view_file(v);
+    write_png((fs::path(run.out) / rel).string(), r.render(SceneView<Scalar>(scene), run.fit.cameras[std::size_t(v)]).color);
+    files.push_back(rel);
+    run.progress(label, int(i + 1), int(views.size()));
+  }
+  return files;
+}
+
+// The files render_orbit_views writes, without rendering.
+template <class Scalar>
+std::vector<std::string> orbit_view_files(const PipelineRun<Scalar>& run, const std::string& folder) {
+  std::vector<std::string> files;
+  for (int v : pipeline_detail::rendered_views(run.fit.views, run.params.render_stride))
+    files.push_back(folder + "/" + pipeline_detail::view_file(v));
+  return files;
+}
+
+}  // namespace orbitforge

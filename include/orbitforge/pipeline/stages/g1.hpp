@@ -1,0 +1,210 @@
+#pragma once
+// Stage 4, g1: the second reconstruction, its bake and R1 -> g1/checkpoint.bin,
+// g1/frames.json, final.ply, R1/NNNN.png. And two comparisons an audit may ask
+// for (PipelineParams::compare_g1_paper, oracle_bound), trained the same way:
+//
+//   g1_paper  the paper's G1: deformable, on the paper's V_hat (R0's arc renders
+//             + completion) -> g1_paper/checkpoint.bin, g1_paper/frames.json,
+//             g1_paper/final.ply
+//   bound     the oracle bound: G1's recipe on everything the oracle provider
+//             knows (the training source frames and the even recorded gap frames,
+//             each at its recorded camera) -> bound/checkpoint.bin,
+//             bound/frames.json, bound/bound.ply. How close G1 gets to it says how
+//             much of the gap to a perfect result is the method's own.
+//
+// Every training frame has the time code of its place on the canonical orbit
+// (position / (views - 1)), so the source and the completion share one clock.
+// frames.json lists each training frame's name and origin, so a test can check
+// that no held-out frame was trained on.
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/ply.hpp"
+#include "orbitforge/pipeline/completion.hpp"
+#include "orbitforge/pipeline/reconstruction.hpp"
+#include "orbitforge/pipeline/run_state.hpp"
+#include "orbitforge/pipeline/stages/completion.hpp"
+
+namespace orbitforge {
+
+namespace g1_detail {
+
+template <class Scalar>
+TrainFrame<Scalar> orbit_frame(const PipelineRun<Scalar>& run, Image<Scalar> image, const Camera<Scalar>& cam,
+                               double position, const std::string& name, int repeats) {
+  const double period = double(run.fit.views - 1);
+  TrainFrame<Scalar> f;
+  f.image = std::move(image);
+  f.camera = cam;
+  f.time = Scalar(std::min(1.0, std::max(0.0, position / period)));
+  f.name = name;
+  f.repeats = repeats;
+  return f;
+}
+
+// The training source frames (G0's), at their estimated cameras.
+template <class Scalar>
+void add_source_frames(const PipelineRun<Scalar>& run, std::vector<TrainFrame<Scalar>>& frames, int repeats) {
+  const auto& in = *run.input;
+  for (int t = 0; t < int(run.fit.source.size()); ++t) {
+    const int idx = run.input_index_of_source(t);
+    if (in.is_withheld(idx)) continue;
+    const auto& cam = in.cameras[std::size_t(idx)].camera;
+    frames.push_back(orbit_frame(run, in.images[std::size_t(idx)], cam, orbit_position(run.fit, cam),
+                                 "source " + in.cameras[std::size_t(idx)].name, repeats));
+  }
+}
+
+inline void write_frame_list(const std::string& path, const std::vector<std::string>& names) {
+  write_file_atomic(path, nlohmann::json({{"frames", names}}).dump(1) + "\n");
+}
+
+template <class Scalar>
+std::vector<std::string> names_of(const std::vector<TrainFrame<Scalar>>& frames) {
+  std::vector<std::string> n;
+  for (const auto& f : frames) n.push_back(f.name);
+  return n;
+}
+
+// Trains a second reconstruction on `frames` (initialised as G1 is) into `dir`
+// and returns its bake.
+template <class Scalar>
+GaussianScene<Scalar> train_second(PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames,
+                                   bool deformable, const std::string& dir, const std::string& key,
+                                   const std::string& label) {
+  namespace fs = std::filesystem;
+  const auto& p = run.params;
+  GaussianScene<Scalar> init = p.g1_from_gmed0 ? read_ply<Scalar>((fs::path(run.out) / "gmed0.ply").string())
+                                               : initial_scene(run, frames);
+  TrainParams tp = run.train_params(p.iters_g1, deformable);
+  tp.max_sh_degree = std::max(tp.max_sh_degree, init.sh_degree);
+  return reconstruct_and_bake(run, frames, std::move(init), tp, dir, key, label);
+}
+
+template <class Scalar>
+nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string& data, bool deformable) {
+  const auto& p = run.params;
+  return {{"train", pipeline_detail::train_settings<Scalar>(p.train, p.iters_g1, deformable, p)},
+          {"from_gmed0", p.g1_from_gmed0},
+          {"data", data},
+          {"source_repeats", p.g1_source_repeats},
+          {"completion_repeats", p.g1_completion_repeats},
+          {"threads", p.threads}};
+}
+
+}  // namespace g1_detail
+
+// The frames G1 trains on, from V_hat (vhat.json) and the input, per `data`.
+template <class Scalar>
+std::vector<TrainFrame<Scalar>> g1_frames(const PipelineRun<Scalar>& run, std::vector<VhatFrame<Scalar>> vhat,
+                                          G1Data data) {
+  const auto& p = run.params;
+  std::vector<TrainFrame<Scalar>> frames;
+  if (data == G1Data::source) g1_detail::add_source_frames(run, frames, p.g1_source_repeats);
+  for (auto& v : vhat) {
+    if (v.from_r0 && data == G1Data::source && !p.g1_arc_renders) continue;
+    const int repeats = v.from_r0 ? 1 : p.g1_completion_repeats;
+    frames.push_back(g1_detail::orbit_frame(run, std::move(v.image), v.camera, v.position, v.origin, repeats));
+  }
+  ensure(!frames.empty(), "pipeline: G1 has no training frames");
+  return frames;
+}
+
+template <class Scalar>
+void stage_g1(PipelineRun<Scalar>& run) {
+  namespace fs = std::filesystem;
+  using namespace pipeline_detail;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto& p = run.params;
+  const fs::path out(run.out);
+  bool reuse = false;
+  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+  nlohmann::json settings = g1_detail::second_settings(run, g1_data_name(p.g1_data), p.g1_deformable);
+  settings["arc_renders"] = p.g1_arc_renders;
+  settings["reuse_r0"] = reuse;
+  settings["render_stride"] = p.render_stride;
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
+  run.keys["g1"] = key;
+  std::vector<std::string> outputs = {"final.ply"};
+  if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/frames.json"});
+  for (const auto& f : orbit_view_files(run, "R1")) outputs.push_back(f);
+  if (run.stage_current("g1", key, outputs)) return;
+  GaussianScene<Scalar> final_scene;
+  if (reuse) {
+    final_scene = read_ply<Scalar>((out / "gmed0.ply").string());
+  } else {
+    const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
+    fs::create_directories(out / "g1");
+    g1_detail::write_frame_list((out / "g1" / "frames.json").string(), g1_detail::names_of(frames));
+    final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1");
+  }
+  write_ply((out / "final.ply").string(), final_scene);
+  render_orbit_views(run, final_scene, "R1", "R1");
+  finish_stage(run, "g1", key, t0, settings, outputs);
+}
+
+// G1 trained on the paper's V_hat, for comparison (no renders along the orbit).
+template <class Scalar>
+void stage_g1_paper(PipelineRun<Scalar>& run) {
+  namespace fs = std::filesystem;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto& p = run.params;
+  const fs::path out(run.out);
+  if (!p.compare_g1_paper) return;
+  bool reuse = false;
+  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+  if (reuse) return;  // no completion: G1 is Gmed0 whatever its data
+  const nlohmann::json settings = g1_detail::second_settings(run, "paper", true);
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
+  run.keys["g1_paper"] = key;
+  const std::vector<std::string> outputs = {"g1_paper/checkpoint.bin", "g1_paper/frames.json", "g1_paper/final.ply"};
+  if (run.stage_current("g1_paper", key, outputs)) return;
+  const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), G1Data::paper);
+  fs::create_directories(out / "g1_paper");
+  g1_detail::write_frame_list((out / "g1_paper" / "frames.json").string(), g1_detail::names_of(frames));
+  const GaussianScene<Scalar> scene =
+      g1_detail::train_second(run, frames, true, (out / "g1_paper").string(), key, "G1 paper");
+  write_ply((out / "g1_paper" / "final.ply").string(), scene);
+  finish_stage(run, "g1_paper", key, t0, settings, outputs);
+}
+
+// The oracle bound (recorded inputs with gap frames only).
+template <class Scalar>
+void stage_bound(PipelineRun<Scalar>& run) {
+  namespace fs = std::filesystem;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto& p = run.params;
+  const fs::path out(run.out);
+  if (!p.oracle_bound) return;
+  const auto& in = *run.input;
+  const GapFrames gap = gap_frames(in, run.fit);
+  if (gap.completion.empty()) {
+    run.log("bound: no recorded frame in the gap; no oracle bound");
+    return;
+  }
+  const nlohmann::json settings = g1_detail::second_settings(run, "oracle bound", p.g1_deformable);
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("g0"))));
+  run.keys["bound"] = key;
+  const std::vector<std::string> outputs = {"bound/checkpoint.bin", "bound/frames.json", "bound/bound.ply"};
+  if (run.stage_current("bound", key, outputs)) return;
+  std::vector<TrainFrame<Scalar>> frames;
+  g1_detail::add_source_frames(run, frames, 1);
+  for (int i : gap.completion) {
+    const auto& cam = in.cameras[std::size_t(i)].camera;
+    frames.push_back(g1_detail::orbit_frame(run, in.images[std::size_t(i)], cam, orbit_position(run.fit, cam),
+                                            "recorded " + in.cameras[std::size_t(i)].name, 1));
+  }
+  fs::create_directories(out / "bound");
+  g1_detail::write_frame_list((out / "bound" / "frames.json").string(), g1_detail::names_of(frames));
+  const GaussianScene<Scalar> scene =
+      g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");
+  write_ply((out / "bound" / "bound.ply").string(), scene);
+  finish_stage(run, "bound", key, t0, settings, outputs);
+}
+
+}  // namespace orbitforge

@@ -1,0 +1,179 @@
+#pragma once
+// Stage 5, report: coverage, support-stratified quality and completion metrics
+// -> report.json, report.md, contact_sheet.png, support_mask.png, top_view.png.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/image_io.hpp"
+#include "orbitforge/io/ply.hpp"
+#include "orbitforge/metrics/coverage.hpp"
+#include "orbitforge/metrics/image.hpp"
+#include "orbitforge/pipeline/completion.hpp"
+#include "orbitforge/pipeline/input_json.hpp"
+#include "orbitforge/pipeline/pictures.hpp"
+#include "orbitforge/pipeline/report.hpp"
+#include "orbitforge/pipeline/run_state.hpp"
+
+namespace orbitforge {
+
+template <class Scalar>
+nlohmann::json coverage_json(const std::vector<double>& azimuth_deg) {
+  std::vector<Scalar> az(azimuth_deg.begin(), azimuth_deg.end());
+  const auto c = orbit_coverage(az);
+  return {{"A", double(c.span_deg)}, {"M", double(c.monotone)}, {"closed", c.closed}};
+}
+
+template <class Scalar>
+nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
+                          const std::vector<int>& frames) {
+  nlohmann::json j = {{"psnr", nullptr}, {"ssim", nullptr}, {"views", 0}};
+  if (frames.empty()) return j;
+  Renderer<Scalar> r = run.renderer();
+  std::vector<ImageQuality> q;
+  for (int i : frames) {
+    const auto& fc = run.input->cameras[std::size_t(i)];
+    q.push_back(compare_images(r.render(SceneView<Scalar>(scene), fc.camera).color, run.input->images[std::size_t(i)],
+                               fc.name, run.params.threads));
+  }
+  const QualityMean m = mean_quality(q);
+  return {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}};
+}
+
+template <class Scalar>
+nlohmann::json stage_report(PipelineRun<Scalar>& run) {
+  namespace fs = std::filesystem;
+  using namespace pipeline_detail;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto& p = run.params;
+  const fs::path out(run.out);
+  std::uint64_t h = fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1")));
+  for (const char* extra : {"g1_paper", "bound"})
+    if (run.keys.count(extra)) h = fnv1a(run.keys.at(extra), h);
+  const std::string key = hex64(fnv1a("report v2", h));
+  run.keys["report"] = key;
+  const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
+                                            "top_view.png"};
+  if (run.stage_current("report", key, outputs))
+    return nlohmann::json::parse(read_file_bytes((out / "report.json").string()));
+  const auto& in = *run.input;
+  const double period = double(run.fit.views - 1);
+
+  // Coverage: views backed by evidence.
+  std::vector<double> az0, az1, az_rendered;
+  for (const auto& s : run.fit.source) {
+    const int idx = in.source[std::size_t(s.input_index)];
+    az0.push_back(orbit_position(run.fit, in.cameras[std::size_t(idx)].camera) * 360.0 / period);
+  }
+  const nlohmann::json vj = nlohmann::json::parse(read_file_bytes((out / "vhat.json").string()));
+  const bool reuse = vj.value("reuse_r0", false);
+  if (reuse)
+    az1 = az0;
+  else
+    for (const auto& e : vj.at("frames")) az1.push_back(e.at("position").get<double>() * 360.0 / period);
+  for (int v : rendered_views(run.fit.views, p.render_stride)) az_rendered.push_back(v * 360.0 / period);
+  nlohmann::json coverage = {{"R0", coverage_json<Scalar>(az0)}, {"R1", coverage_json<Scalar>(az1)}};
+  coverage["R0"]["rendered"] = coverage_json<Scalar>(az_rendered);
+  coverage["R1"]["rendered"] = coverage_json<Scalar>(az_rendered);
+
+  // Quality at the recorded cameras: supported = source frames (those trained on,
+  // and the withheld ones no reconstruction saw); gap_heldout = the recorded
+  // frames of the gap the oracle holds out (odd frame numbers).
+  std::vector<int> supported_train, supported_heldout;
+  for (std::size_t t = 0; t < run.fit.source.size(); ++t) {
+    const int idx = run.input_index_of_source(int(t));
+    (in.is_withheld(idx) ? supported_heldout : supported_train).push_back(idx);
+  }
+  const GapFrames gap = gap_frames(in, run.fit);
+  run.log("report: scoring " + std::to_string(supported_train.size()) + " training, " +
+          std::to_string(supported_heldout.size()) + " withheld source and " + std::to_string(gap.heldout.size()) +
+          " held-out gap views");
+  auto rows = [&](const GaussianScene<Scalar>& scene) {
+    return nlohmann::json{{"supported_train", quality_of(run, scene, supported_train)},
+                          {"supported_heldout", quality_of(run, scene, supported_heldout)},
+                          {"gap_heldout", quality_of(run, scene, gap.heldout)}};
+  };
+  nlohmann::json quality = {{"R0", rows(read_ply<Scalar>((out / "gmed0.ply").string()))},
+                            {"R1", rows(read_ply<Scalar>((out / "final.ply").string()))}};
+  if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(read_ply<Scalar>((out / "g1_paper" / "final.ply").string()));
+  if (run.keys.count("bound")) quality["bound"] = rows(read_ply<Scalar>((out / "bound" / "bound.ply").string()));
+
+  // Pictures.
+  const int tile = std::min(128, in.width);
+  auto nearest = [&](int v) { return std::min(run.fit.views - 1, int(std::lround(double(v) / p.render_stride)) * p.render_stride); };
+  const Image<float> sheet = contact_sheet(2, run.fit.views, tile, [&](int row, int v) {
+    const fs::path f = out / (row == 0 ? "R0" : "R1") / view_file(nearest(v));
+    std::error_code ec;
+    return fs::exists(f, ec) ? read_image<float>(f.string()) : Image<float>();
+  });
+  write_png((out / "contact_sheet.png").string(), sheet);
+  write_png((out / "support_mask.png").string(), support_mask_picture(run.fit.support));
+  std::vector<Camera<Scalar>> src_cams, other_cams;
+  std::vector<char> is_source(in.cameras.size(), 0);
+  for (int s : in.source) is_source[std::size_t(s)] = 1;
+  for (std::size_t i = 0; i < in.cameras.size(); ++i) {
+    if (!in.cameras[i].valid || !in.cameras[i].camera.is_finite()) continue;
+    (is_source[i] ? src_cams : other_cams).push_back(in.cameras[i].camera);
+  }
+  write_png((out / "top_view.png").string(), top_view_picture(run.fit, src_cams, other_cams));
+
+  // Stage times from the records (a resumed run reports the times of the runs that did the work).
+  nlohmann::json stages = nlohmann::json::object();
+  double total = 0;
+  for (const char* s : {"orbit", "g0", "static_proxy", "completion", "g1"}) {
+    if (std::string(s) == "static_proxy" && !(p.deformable && p.static_proxy_diagnostics)) continue;
+    const double secs = recorded_seconds(run.out, s);
+    stages[s] = secs;
+    total += secs;
+  }
+  // Comparisons an audit asked for are not part of the method's time.
+  nlohmann::json comparisons = nlohmann::json::object();
+  for (const char* s : {"g1_paper", "bound"})
+    if (run.keys.count(s)) comparisons[s] = recorded_seconds(run.out, s);
+  const double report_secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  stages["report"] = report_secs;
+  total += report_secs;
+
+  const nlohmann::json orbit = nlohmann::json::parse(read_file_bytes((out / "orbit.json").string()));
+  nlohmann::json completion = vj.at("metrics");
+  nlohmann::json r = {{"input", in.description},
+                      {"completion_provider", vj.value("provider", std::string())},
+                      {"prompt", run.prompt.video_prompt},
+                      {"settings",
+                       {{"iters_g0", p.iters_g0},
+                        {"iters_g1", p.iters_g1},
+                        {"deformable", p.deformable},
+                        {"g1_from_gmed0", p.g1_from_gmed0},
+                        {"g1_data", g1_data_name(p.g1_data)},
+                        {"g1_deformable", p.g1_deformable},
+                        {"g1_arc_renders", p.g1_arc_renders},
+                        {"median_samples", p.median_samples},
+                        {"views", run.fit.views},
+                        {"render_stride", p.render_stride},
+                        {"width", in.width},
+                        {"height", in.height}}},
+                      {"stages", stages},
+                      {"total_seconds", total},
+                      {"comparison_seconds", comparisons},
+                      {"frames", source_frames_json(in)},
+                      {"points", points_json(in)},
+                      {"background", {{"color", in.background}, {"reason", in.background_reason}}},
+                      {"coverage", coverage},
+                      {"diagnostics", orbit.at("diagnostics")},
+                      {"quality", quality},
+                      {"completion", completion}};
+  if (p.deformable && p.static_proxy_diagnostics)
+    r["static_proxy"] = nlohmann::json::parse(read_file_bytes((out / "static_proxy.json").string()));
+  write_file_atomic((out / "report.json").string(), r.dump(1) + "\n");
+  write_file_atomic((out / "report.md").string(), report_markdown(r));
+  record_stage(run.out, "report", key, report_secs, nlohmann::json::object(), outputs);
+  run.ran.push_back("report");
+  return r;
+}
+
+}  // namespace orbitforge

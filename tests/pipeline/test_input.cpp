@@ -1,0 +1,247 @@
+// The pipeline's input: only source evidence reaches G0 (the sparse-point
+// filter), frame ranges count video frames (missing registrations are skipped
+// by name and keep their time codes), and the background colour comes from the
+// frames' borders.
+#include <catch2/catch.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/input_json.hpp"
+#include "orbitforge/pipeline/pipeline.hpp"
+#include "support/data.hpp"
+
+using namespace orbitforge;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    std::random_device rd;
+    path = fs::temp_directory_path() / ("orbitforge_input_test_" + std::to_string(rd()));
+    fs::create_directories(path);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+// An input of n registered frames (no images needed by the filter) with the
+// source range [first, last] (0-based).
+template <class S>
+PipelineInput<S> frames_only(int n, int first, int last) {
+  PipelineInput<S> in;
+  for (int i = 0; i < n; ++i) {
+    FrameCamera<S> fc;
+    fc.name = std::to_string(1000 + i) + ".png";
+    in.cameras.push_back(fc);
+    in.images.emplace_back(2, 2, 3, S(0.5));
+  }
+  select_source(in, std::to_string(first + 1) + "-" + std::to_string(last + 1));
+  return in;
+}
+
+template <class S>
+void add_point(PipelineInput<S>& in, S x, std::vector<int> frames) {
+  for (int c = 0; c < 3; ++c) {
+    in.points.push_back(x + S(c));
+    in.colors.push_back(S(0.25) * S(c));
+  }
+  in.point_frames.push_back(std::move(frames));
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("source_points: a point reaches G0 only when two training source frames saw it",
+                   "[pipeline][input][points]", float, double) {
+  using S = TestType;
+  PipelineInput<S> in = frames_only<S>(20, 0, 9);  // source: frames 0..9; gap: 10..19
+  add_point(in, S(1), {0, 1});          // two source frames: kept
+  add_point(in, S(2), {3, 12, 15});     // one source frame: dropped
+  add_point(in, S(3), {12, 13, 19});    // seen only from the gap: dropped
+  add_point(in, S(4), {5, 5, 5});       // one source frame three times: dropped
+  add_point(in, S(5), {8, 9, 17});      // kept
+  add_point(in, S(6), {7, 19});         // dropped
+  const SourcePoints<S> sp = source_points(in);
+  CHECK(sp.total == 6);
+  CHECK(sp.kept == 2);
+  CHECK(sp.dropped == 4);
+  REQUIRE(sp.points.size() == 6);
+  CHECK(sp.points[0] == S(1));
+  CHECK(sp.points[3] == S(5));
+  CHECK(sp.colors[4] == S(0.25));
+
+  // Withheld frames do not count: frame 9 is the 10th of the range (every 5th withheld: 4, 9).
+  withhold_every(in, 5);
+  REQUIRE(in.withheld == std::vector<int>{4, 9});
+  CHECK(source_points(in).kept == 1);  // {8, 9} is now one training frame
+
+  // A point list without tracks cannot prove its points come from the source.
+  in.point_frames.clear();
+  const SourcePoints<S> none = source_points(in);
+  CHECK(none.kept == 0);
+  CHECK(none.dropped == 6);
+  CHECK_THAT(none.rule, Catch::Contains("does not say which frames"));
+
+  const auto j = points_json(frames_only<S>(3, 0, 2));
+  CHECK(j.at("total") == 0);
+}
+
+TEMPLATE_TEST_CASE("select_source: frames are video frames; missing cameras are skipped and keep the clock",
+                   "[pipeline][input][frames]", float, double) {
+  using S = TestType;
+  PipelineInput<S> in = frames_only<S>(40, 0, 39);
+  for (int missing : {4, 5, 29}) in.cameras[std::size_t(missing)].valid = false;  // frames 5, 6, 30
+  select_source(in, "1-33");
+  CHECK(in.source_first == 0);
+  CHECK(in.source_last == 32);
+  CHECK(in.source.size() == 30);
+  for (int f : in.source) CHECK((f != 4 && f != 5 && f != 29));
+  REQUIRE(in.source_skipped.size() == 3);
+  CHECK(in.source_skipped[0].name == "1004.png");
+  CHECK_THAT(in.source_skipped[2].reason, Catch::Contains("no estimated camera"));
+  // Time codes follow frame numbers: frame 7 (index 6) sits at 6/32 whatever is missing before it.
+  CHECK(in.time_code(6) == Approx(6.0 / 32.0));
+  CHECK(in.time_code(32) == Approx(1.0));
+
+  const auto j = source_frames_json(in);
+  CHECK(j.at("skipped").size() == 3);
+  CHECK(j.at("skipped")[2].at("frame") == 30);
+  CHECK(j.at("trained").size() == 30);
+
+  // A range past the registered frames but within the video uses what it has.
+  for (int i = 28; i < 40; ++i) in.cameras[std::size_t(i)].valid = false;
+  select_source(in, "1-33");
+  CHECK(in.source.size() == 26);  // 1..28 minus 5, 6
+  CHECK_THROWS_WITH(select_source(in, "1-41"), Catch::Contains("41") && Catch::Contains("40 frames"));
+}
+
+TEMPLATE_TEST_CASE("estimate_background: white and black studios are found, cluttered borders fall back",
+                   "[pipeline][input][background]", float, double) {
+  using S = TestType;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0, 1);
+  auto frame = [&](double r, double g, double b, double noise, bool object) {
+    Image<S> img(64, 48, 3);
+    for (int y = 0; y < 48; ++y)
+      for (int x = 0; x < 64; ++x) {
+        const bool inside = object && x > 12 && x < 52 && y > 8 && y < 40;
+        const double c[3] = {inside ? u(rng) : r, inside ? u(rng) : g, inside ? u(rng) : b};
+        for (int k = 0; k < 3; ++k)
+          img(x, y, k) = S(std::min(1.0, std::max(0.0, c[k] + noise * (u(rng) - 0.5))));
+      }
+    return img;
+  };
+  std::vector<Image<S>> white, black, grey, cluttered;
+  for (int i = 0; i < 4; ++i) {
+    white.push_back(frame(1, 1, 1, 0.01, true));
+    black.push_back(frame(0, 0, 0, 0.01, true));
+    grey.push_back(frame(0.5, 0.45, 0.4, 0.02, true));
+    cluttered.push_back(frame(0.5, 0.5, 0.5, 1.0, true));  // uniform noise everywhere
+  }
+  auto ptrs = [](const std::vector<Image<S>>& v) {
+    std::vector<const Image<S>*> p;
+    for (const auto& i : v) p.push_back(&i);
+    return p;
+  };
+  const BackgroundEstimate w = estimate_background(ptrs(white));
+  CHECK(w.from_data);
+  CHECK(w.color == std::array<double, 3>{{1, 1, 1}});  // snapped to pure white
+  const BackgroundEstimate b = estimate_background(ptrs(black));
+  CHECK(b.from_data);
+  CHECK(b.color == std::array<double, 3>{{0, 0, 0}});
+  const BackgroundEstimate g = estimate_background(ptrs(grey));
+  CHECK(g.from_data);
+  CHECK(g.color[0] == Approx(0.5).margin(0.02));
+  CHECK(g.color[2] == Approx(0.4).margin(0.02));
+  BackgroundParams fallback;
+  fallback.fallback = {{0.2, 0.3, 0.4}};
+  const BackgroundEstimate c = estimate_background(ptrs(cluttered), fallback);
+  CHECK_FALSE(c.from_data);
+  CHECK(c.color == fallback.fallback);
+  CHECK(c.agreement < 0.5);
+  CHECK_THAT(c.reason, Catch::Contains("disagree"));
+
+  // choose_background: the override wins and says so.
+  PipelineInput<S> in = frames_only<S>(3, 0, 2);
+  in.images = white;
+  in.images.resize(3);
+  const std::array<double, 3> red{{1, 0, 0}};
+  CHECK(choose_background(in, &red).color == red);
+  CHECK(in.background == red);
+  CHECK(choose_background(in).color == std::array<double, 3>{{1, 1, 1}});
+}
+
+TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses the others by name",
+          "[pipeline][input][frames][data]") {
+  using S = float;
+  if (!orbitforge_test::have_shared_data("v3d/cool_teddy")) return;
+  TempDir tmp;
+  const fs::path src = orbitforge_test::shared_path("v3d/cool_teddy");
+  fs::create_directories(tmp.path / "sparse" / "0");
+  fs::create_symlink(src / "images", tmp.path / "images");
+  fs::copy_file(src / "sparse" / "0" / "cameras.txt", tmp.path / "sparse" / "0" / "cameras.txt");
+  fs::copy_file(src / "sparse" / "0" / "points3D.txt", tmp.path / "sparse" / "0" / "points3D.txt");
+  {
+    // images.txt without 005.jpg, 006.jpg, 030.jpg (each an image line and its points line).
+    std::ifstream in(src / "sparse" / "0" / "images.txt");
+    std::ofstream out(tmp.path / "sparse" / "0" / "images.txt");
+    std::string line;
+    bool skip_next = false;
+    while (std::getline(in, line)) {
+      if (skip_next) {
+        skip_next = false;
+        continue;
+      }
+      if (line.find("005.jpg") != std::string::npos || line.find("006.jpg") != std::string::npos ||
+          line.find("030.jpg") != std::string::npos) {
+        skip_next = true;
+        continue;
+      }
+      out << line << "\n";
+    }
+  }
+  const PipelineInput<S> in = load_colmap_input<S>(tmp.path.string(), "1-33", 64, 64);
+  REQUIRE(in.cameras.size() == 90);
+  REQUIRE(in.source.size() == 30);
+  std::vector<std::string> names;
+  for (int f : in.source) names.push_back(in.cameras[std::size_t(f)].name);
+  for (const char* gone : {"005.jpg", "006.jpg", "030.jpg"})
+    CHECK(std::find(names.begin(), names.end(), gone) == names.end());
+  CHECK(names[4] == "007.jpg");
+  CHECK(in.time_code(6) == Approx(6.0 / 32.0));  // 007.jpg keeps its place in time
+  REQUIRE(in.source_skipped.size() == 3);
+  CHECK(in.source_skipped[2].name == "030.jpg");
+  // The points the model triangulated from all 90 frames: only those two source frames saw survive.
+  const SourcePoints<S> sp = source_points(in);
+  CHECK(sp.total > 1000);
+  CHECK(sp.kept > 100);
+  CHECK(sp.kept < sp.total);
+
+  // The orbit and a (tiny) pipeline run use exactly those frames.
+  PipelineParams p;
+  p.orbit.views = 73;
+  p.iters_g0 = p.iters_g1 = 20;
+  p.median_samples = 8;
+  p.train.field.width = 16;
+  p.train.field.depth = 2;
+  p.threads = 2;
+  p.progress = false;
+  p.static_proxy_diagnostics = false;
+  p.completion = "none";
+  run_pipeline(in, p, (tmp.path / "run").string());
+  const auto orbit = nlohmann::json::parse(read_file_bytes((tmp.path / "run" / "orbit.json").string()));
+  std::vector<std::string> fitted;
+  for (const auto& s : orbit.at("source")) fitted.push_back(s.at("name").get<std::string>());
+  CHECK(fitted == names);
+  CHECK(orbit.at("source_frames").at("skipped").size() == 3);
+  const auto report = nlohmann::json::parse(read_file_bytes((tmp.path / "run" / "report.json").string()));
+  CHECK(report.at("frames").at("trained").size() == 30);
+  CHECK(report.at("points").at("kept") == sp.kept);
+}
