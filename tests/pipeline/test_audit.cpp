@@ -254,13 +254,13 @@ TEST_CASE("audit markdown: a row per input, failures with their error, '-' for m
   auto count_prefix = [&](const std::string& prefix) {
     return std::count_if(lines.begin(), lines.end(), [&](const std::string& l) { return l.rfind(prefix, 0) == 0; });
   };
-  // Inputs table + one row in each of the five sections (no static proxy here).
-  REQUIRE(count_prefix("| cool_teddy |") == 6);
-  REQUIRE(count_prefix("| doll |") == 6);
+  // Inputs table + one row in each of the seven sections (no static proxy here).
+  REQUIRE(count_prefix("| cool_teddy |") == 8);
+  REQUIRE(count_prefix("| doll |") == 8);
   REQUIRE(count_prefix("| robot | failed |") == 1);
   REQUIRE(count_prefix("| robot |") == 1);  // failed: not in the metric tables
-  REQUIRE(count_prefix("| **median** |") == 5);
-  REQUIRE(count_prefix("| **P90** |") == 5);
+  REQUIRE(count_prefix("| **median** |") == 7);
+  REQUIRE(count_prefix("| **P90** |") == 7);
   REQUIRE(md.find("Static proxy") == std::string::npos);
   REQUIRE(md.find("missing \\| broken model") != std::string::npos);  // escaped, one line
   REQUIRE(md.find("2 of 3 inputs succeeded") != std::string::npos);
