@@ -86,6 +86,23 @@ GaussianScene<Scalar> train_second(PipelineRun<Scalar>& run, const std::vector<T
   return reconstruct_and_bake(run, frames, std::move(init), tp, dir, key, label);
 }
 
+// What a training run sees, names aside: every frame's pixels, camera, time code
+// and weight, in order. Two runs with equal signatures and settings train the
+// same reconstruction.
+template <class Scalar>
+std::uint64_t training_set_signature(const std::vector<TrainFrame<Scalar>>& frames) {
+  std::uint64_t h = kFnv1aSeed;
+  for (const auto& f : frames) {
+    h = fnv1a(f.image.data.data(), f.image.data.size() * sizeof(Scalar), h);
+    const auto& k = f.camera.intrinsics;
+    const Scalar numbers[] = {k.fx, k.fy, k.cx, k.cy, Scalar(k.width), Scalar(k.height), f.time, Scalar(f.repeats)};
+    h = fnv1a(numbers, sizeof(numbers), h);
+    h = fnv1a(f.camera.R.data(), 9 * sizeof(Scalar), h);
+    h = fnv1a(f.camera.t.data(), 3 * sizeof(Scalar), h);
+  }
+  return h;
+}
+
 template <class Scalar>
 nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string& data, bool deformable) {
   const auto& p = run.params;
@@ -187,11 +204,6 @@ void stage_bound(PipelineRun<Scalar>& run) {
     run.log("bound: no recorded frame in the gap; no oracle bound");
     return;
   }
-  const nlohmann::json settings = g1_detail::second_settings(run, "oracle bound", p.g1_deformable);
-  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("g0"))));
-  run.keys["bound"] = key;
-  const std::vector<std::string> outputs = {"bound/checkpoint.bin", "bound/frames.json", "bound/bound.ply"};
-  if (run.stage_current("bound", key, outputs)) return;
   std::vector<TrainFrame<Scalar>> frames;
   g1_detail::add_source_frames(run, frames, 1);
   for (int i : gap.completion) {
@@ -199,10 +211,29 @@ void stage_bound(PipelineRun<Scalar>& run) {
     frames.push_back(g1_detail::orbit_frame(run, in.images[std::size_t(i)], cam, orbit_position(run.fit, cam),
                                             "recorded " + in.cameras[std::size_t(i)].name, 1));
   }
+  // With a perfect completion (the oracle) and G1 on source + completion, G1 has
+  // already trained on exactly this set with these settings: the bound is G1.
+  bool same_as_g1 = false;
+  if (!p.g1_arc_renders && p.g1_data == G1Data::source) {
+    bool reuse = false;
+    std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+    same_as_g1 = !reuse && g1_detail::training_set_signature(g1_frames(run, std::move(vhat), p.g1_data)) ==
+                               g1_detail::training_set_signature(frames);
+  }
+  nlohmann::json settings = g1_detail::second_settings(run, "oracle bound", p.g1_deformable);
+  settings["same_as_g1"] = same_as_g1;
+  const std::string key =
+      hex64(fnv1a(settings.dump(), fnv1a(same_as_g1 ? run.keys.at("g1") : run.keys.at("g0"))));
+  run.keys["bound"] = key;
+  std::vector<std::string> outputs = {"bound/frames.json", "bound/bound.ply"};
+  if (!same_as_g1) outputs.insert(outputs.begin(), "bound/checkpoint.bin");
+  if (run.stage_current("bound", key, outputs)) return;
   fs::create_directories(out / "bound");
   g1_detail::write_frame_list((out / "bound" / "frames.json").string(), g1_detail::names_of(frames));
+  if (same_as_g1) run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
   const GaussianScene<Scalar> scene =
-      g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");
+      same_as_g1 ? read_ply<Scalar>((out / "final.ply").string())
+                 : g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");
   write_ply((out / "bound" / "bound.ply").string(), scene);
   finish_stage(run, "bound", key, t0, settings, outputs);
 }
