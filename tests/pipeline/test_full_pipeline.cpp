@@ -393,6 +393,39 @@ TEST_CASE("pipeline: external provider writes the request, stops, and resumes wi
   CHECK(vhat.at("frames").size() == 73);
   CHECK(r["coverage"]["R1"]["closed"].get<bool>());
   CHECK(r["completion"]["temporal_trace"]["reversals"].get<int>() == 0);
+
+  // A video model that stalls and turns back: frames repeated, then a stretch
+  // played backwards. The requested cameras cannot show it; the pixels do.
+  std::vector<int> gap;  // synthetic indices of the gap frames, in the clip's order
+  for (const auto& f : vhat.at("frames"))
+    if (f.at("kind") == "completion") gap.push_back(std::stoi(f.at("origin").get<std::string>().substr(10, 4)));
+  std::sort(gap.begin(), gap.end());
+  REQUIRE(gap.size() >= 24);
+  std::vector<int> expected;  // canonical view each gap frame now shows
+  for (std::size_t i = 0; i < gap.size(); ++i) {
+    std::size_t k = i;
+    if (i >= 4 && i < 8) k = 4;             // a stall: four copies of one frame
+    if (i >= 12 && i < 18) k = 12 - (i - 12);  // a reversal: back over six frames
+    if (i >= 18 && i < 24) k = 7 + (i - 18);   // and forward again
+    const int v = s2c[std::size_t(gap[k])];
+    expected.push_back(v);
+    fs::copy_file(dir / "R0" / pipeline_detail::view_file(v),
+                  dir / "completion_request" / "completed" / pipeline_detail::view_file(gap[i]),
+                  fs::copy_options::overwrite_existing);
+  }
+  const auto r2 = run_pipeline(tiny_input_data(), p, dir.string());
+  const auto& ct = r2["completion"]["completion_trace"];
+  INFO(ct.dump());
+  REQUIRE(ct.is_object());
+  CHECK(ct["stall_fraction"].get<double>() >= 3.0 / double(gap.size() - 1));
+  CHECK(ct["reversals"].get<int>() == 2);
+  CHECK(r2["completion"]["temporal_trace"]["reversals"].get<int>() == 0);  // the cameras asked for
+  // Each gap frame is matched to the R0 render it was made from.
+  std::vector<double> matched = ct["matched_views"].get<std::vector<double>>();
+  std::vector<double> want(expected.begin(), expected.end());
+  if (matched.size() == want.size() && !matched.empty() && matched.front() != want.front())
+    std::reverse(want.begin(), want.end());  // the clip may run against the canonical order
+  CHECK(matched == want);
 }
 
 TEMPLATE_TEST_CASE("pipeline: bad inputs give clear errors and leave earlier outputs intact", "[pipeline][errors]",

@@ -84,7 +84,13 @@ inline std::string report_markdown(const nlohmann::json& r) {
   const auto& tr = at(r, "completion", "temporal_trace");
   md << "- temporal trace: absolute turns " << num(at(tr, "absolute_turns"), 3) << ", net turns "
      << num(at(tr, "net_turns"), 3) << ", stall fraction " << num(at(tr, "stall_fraction"), 3) << ", reversals "
-     << num(at(tr, "reversals")) << "\n\n";
+     << num(at(tr, "reversals")) << " (requested cameras)\n";
+  const auto& ct = at(r, "completion", "completion_trace");
+  if (ct.is_object())
+    md << "- completion's own trace (frames matched to R0 renders): absolute turns "
+       << num(at(ct, "absolute_turns"), 3) << ", net turns " << num(at(ct, "net_turns"), 3) << ", stall fraction "
+       << num(at(ct, "stall_fraction"), 3) << ", reversals " << num(at(ct, "reversals")) << "\n";
+  md << "\n";
   const auto& sp = at(r, "static_proxy", "variants");
   if (sp.is_object() && !sp.empty()) {
     md << "## Static proxy (G0 along the canonical orbit, " << num(at(r, "static_proxy", "views_scored"))

@@ -13,6 +13,7 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
+#include "orbitforge/metrics/view_matching.hpp"
 #include "orbitforge/pipeline/completion.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
@@ -110,6 +111,39 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
   if (!res.ready) throw PipelineStopped(res.message);
   run.log("completion (" + std::string(closed.empty() ? provider.name() : "skipped") + "): " + res.message);
 
+  // The completion's own trace: its frames, in the provider's (the video's)
+  // order, placed on the orbit by the R0 render they look most like.
+  nlohmann::json content_trace = nullptr;
+  if (!res.reuse_r0 && res.frames.size() >= 2) {
+    constexpr int kGrid = 24;
+    std::vector<std::vector<double>> refs, frames;
+    std::vector<double> ref_positions;
+    for (int v : rendered_views(run.fit.views, p.render_stride)) {
+      if (!ctx.r0_rendered(v)) continue;
+      refs.push_back(thumbnail(ctx.r0(v), kGrid));
+      ref_positions.push_back(v);
+    }
+    for (const auto& f : res.frames) frames.push_back(thumbnail(f.image, kGrid));
+    if (!refs.empty()) {
+      const ViewMatch m = match_views(frames, refs, ref_positions);
+      TraceParams tp;
+      tp.period = double(run.fit.views - 1);
+      tp.stall_threshold = 0.5;  // matched positions are whole views: a step of 0 is a stall
+      const TemporalTrace tr = temporal_trace(m.positions, tp);
+      double mean_distance = 0;
+      for (double d : m.distances) mean_distance += d / double(m.distances.size());
+      content_trace = {{"absolute_turns", tr.absolute_turns},
+                       {"net_turns", tr.net_turns},
+                       {"stall_fraction", tr.stall_fraction},
+                       {"reversals", tr.reversals},
+                       {"steps", tr.steps},
+                       {"matched_views", m.positions},
+                       {"mean_match_l1", mean_distance},
+                       {"source", "completion frames in the provider's order, each placed at the canonical view "
+                                  "whose R0 render its 24x24 thumbnail matches best"}};
+    }
+  }
+
   std::vector<VhatFrame<Scalar>> vhat;
   if (!res.reuse_r0) {
     for (int v : rendered_views(run.fit.views, p.render_stride)) {
@@ -171,7 +205,8 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
         {"stall_fraction", tr.stall_fraction},
         {"reversals", tr.reversals},
         {"steps", tr.steps},
-        {"source", "camera positions on the orbit"}}},
+        {"source", "V_hat's camera positions on the orbit (as requested)"}}},
+      {"completion_trace", content_trace},
       {"anchor_index_error", {{"mean", run.layout.anchor_error_mean}, {"max", run.layout.anchor_error_max}}},
       {"frames_requested", run.layout.frames}};
   const nlohmann::json j = {{"provider", closed.empty() ? provider.name() : std::string("none (orbit closed)")},
