@@ -2,8 +2,8 @@
 // one table of their report.json figures (coverage, orbit diagnostics, quality,
 // completion, stage times) with median and P90 rows.
 //
-//   audit --inputs DIR... [--frames A-B] [--completion external|oracle|none]
-//         [--width W --height H] [--iters N] [--threads N] [--shard i/n] [--report-only] [--quiet] --out DIR
+//   audit --inputs DIR... [--protocol measured|paper] [full_pipeline's flags] [--shard i/n]
+//         [--report-only] --out DIR
 //
 // Each input DIR (a COLMAP folder, as full_pipeline --colmap takes) runs into
 // OUT/<basename of DIR>/ exactly as full_pipeline would, and resumes like it:
@@ -25,6 +25,7 @@
 #include "cli.hpp"
 #include "orbitforge/pipeline/audit.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
+#include "pipeline_flags.hpp"
 
 using namespace orbitforge;
 using S = float;
@@ -32,9 +33,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const char* kUsage =
-    "usage: audit --inputs DIR... [--frames A-B] [--completion external|oracle|none]\n"
-    "             [--width W --height H] [--iters N] [--threads N] [--shard i/n] [--report-only] [--quiet] --out DIR\n";
+const std::string kUsage =
+    std::string("usage: audit --inputs DIR... [flags] [--shard i/n] [--report-only] --out DIR\n"
+                "  (audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound)\n") +
+    cli::kPipelineFlagsUsage;
 
 // The folder name an input's outputs go to: the last component of its path.
 std::string input_name(const std::string& dir) {
@@ -49,12 +51,12 @@ std::string input_name(const std::string& dir) {
 int main(int argc, char** argv) {
   return cli::run([&]() -> int {
     std::vector<std::string> inputs;
-    std::string frames, out, shard_text;
-    PipelineParams p;
-    int width = 0, height = 0;
+    std::string out, shard_text;
+    cli::PipelineFlags flags;
+    flags.holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
+    flags.params.compare_g1_paper = flags.params.oracle_bound = true;
+    cli::begin_pipeline_flags("audit", argc, argv, flags);
     bool report_only = false;
-    int holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
-    p.compare_g1_paper = p.oracle_bound = true;
     cli::ArgWalker a("audit", argc, argv);
     bool more = a.next();
     while (more) {
@@ -65,31 +67,12 @@ int main(int argc, char** argv) {
           inputs.push_back(a.flag());
           any = true;
         }
-        if (!any) throw cli::UsageError("audit: --inputs needs at least one folder\n" + std::string(kUsage));
+        if (!any) throw cli::UsageError("audit: --inputs needs at least one folder\n" + kUsage);
         continue;
       }
-      if (f == "--frames") frames = a.value();
-      else if (f == "--completion") {
-        p.completion = a.value();
-        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
-            p.completion != "perturbed")
-          throw cli::UsageError("audit: --completion must be external, oracle, perturbed or none, got '" +
-                                p.completion + "'");
-      } else if (f == "--holdout-every") holdout_every = int(cli::parse_int("audit", f, a.value(), 0));
-      else if (f == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
-      else if (f == "--g1-data") p.g1_data = parse_g1_data(a.value());
-      else if (f == "--g1-arc-renders") p.g1_arc_renders = true;
-      else if (f == "--g1-deformable") p.g1_deformable = true;
-      else if (f == "--g1-static") p.g1_deformable = false;
-      else if (f == "--g1-source-repeats") p.g1_source_repeats = int(cli::parse_int("audit", f, a.value(), 1));
-      else if (f == "--g1-completion-repeats") p.g1_completion_repeats = int(cli::parse_int("audit", f, a.value(), 1));
-      else if (f == "--width") width = int(cli::parse_int("audit", f, a.value(), 8));
-      else if (f == "--height") height = int(cli::parse_int("audit", f, a.value(), 8));
-      else if (f == "--iters") p.iters_g0 = p.iters_g1 = int(cli::parse_int("audit", f, a.value(), 1));
-      else if (f == "--threads") p.threads = int(cli::parse_int("audit", f, a.value(), 0));
-      else if (f == "--shard") shard_text = a.value();
+      if (cli::parse_pipeline_flag("audit", a, flags)) {
+      } else if (f == "--shard") shard_text = a.value();
       else if (f == "--report-only") report_only = true;
-      else if (f == "--quiet") p.progress = false;
       else if (f == "--out") out = a.value();
       else if (f == "-h" || f == "--help") {
         std::cout << kUsage;
@@ -98,21 +81,16 @@ int main(int argc, char** argv) {
         throw cli::UsageError("audit: unknown argument '" + f + "'\n" + kUsage);
       more = a.next();
     }
-    if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required\n" + std::string(kUsage));
-    if (out.empty()) throw cli::UsageError("audit: --out DIR is required\n" + std::string(kUsage));
+    cli::end_pipeline_flags(flags);
+    const PipelineParams& p = flags.params;
+    if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required\n" + kUsage);
+    if (out.empty()) throw cli::UsageError("audit: --out DIR is required\n" + kUsage);
     AuditShard shard;
     if (!shard_text.empty()) {
       try {
         shard = parse_shard(shard_text);
       } catch (const Error& e) {
         throw cli::UsageError(std::string("audit: --shard: ") + e.what());
-      }
-    }
-    if (!frames.empty()) {
-      try {
-        parse_frame_range(frames);
-      } catch (const Error& e) {
-        throw cli::UsageError(std::string("audit: --frames: ") + e.what());
       }
     }
     // Outputs go to OUT/<basename>: two inputs with one name would share a folder.
@@ -138,10 +116,7 @@ int main(int argc, char** argv) {
         failed.name = name;
         try {
           // The same loading and settings as full_pipeline --colmap.
-          PipelineInput<S> input = load_colmap_input<S>(dir, frames.empty() ? std::string("1-33") : frames,
-                                                        width > 0 ? width : 512, height > 0 ? height : 512);
-          withhold_every(input, holdout_every);
-          choose_background(input);
+          const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, flags);
           run_pipeline(input, p, dest);
         } catch (const PipelineStopped& e) {
           failed.error = e.what();
@@ -168,10 +143,13 @@ int main(int argc, char** argv) {
                                {"shard", std::to_string(shard.index) + "/" + std::to_string(shard.count)},
                                {"inputs", mine}};
     if (!report_only) {
-      settings["frames"] = frames.empty() ? std::string("1-33") : frames;
+      const auto size = cli::working_size(flags);
+      settings["protocol"] = protocol_name(flags.protocol);
+      settings["frames"] = flags.frames;
       settings["completion"] = p.completion;
-      settings["width"] = width > 0 ? width : 512;
-      settings["height"] = height > 0 ? height : 512;
+      settings["width"] = size[0];  // 0: the frames' own
+      settings["height"] = size[1];
+      settings["holdout_every"] = flags.holdout_every;
       settings["iters"] = p.iters_g0;
       settings["threads"] = p.threads;
     }

@@ -1,10 +1,8 @@
 // full_pipeline: the whole method, from a recorded source video with estimated
 // cameras to a closed-orbit Gaussian Splatting scene (final.ply) with a report.
 //
-//   full_pipeline --colmap DIR [--frames A-B] [--completion external|oracle|none] [--prompt TEXT]
-//                 [--width W --height H] [--iters N] [--iters-g1 N] [--views 361] [--render-stride K]
-//                 [--static] [--g1-random-init] [--median-samples 128] [--background r,g,b]
-//                 [--threads N] [--seed S] [--quiet] --out DIR
+//   full_pipeline --colmap DIR [--protocol measured|paper] [--frames A-B] [--completion ...]
+//                 [--holdout-every K] [--prompt TEXT] [...] --out DIR   (--help lists every flag)
 //   full_pipeline            (no arguments: the embedded synthetic input, oracle completion,
 //                             small size, writes ./out/pipeline)
 //
@@ -16,110 +14,62 @@
 #include <iostream>
 #include <string>
 
+#include "cli.hpp"
+#include "orbitforge/pipeline/completion_providers.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
+#include "pipeline_flags.hpp"
 
 using namespace orbitforge;
 using S = float;
 
 namespace {
 
-const char* kUsage =
-    "usage: full_pipeline --colmap DIR [--frames A-B] [--completion external|oracle|none] [--prompt TEXT]\n"
-    "                     [--width W --height H] [--iters N] [--iters-g1 N] [--views 361] [--render-stride K]\n"
-    "                     [--static] [--g1-random-init] [--median-samples 128] [--background r,g,b]\n"
-    "                     [--threads N] [--seed S] [--quiet] --out DIR\n"
-    "       full_pipeline   (no arguments: embedded synthetic input -> ./out/pipeline)\n";
-
-struct UsageError : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
-
-long to_long(const std::string& flag, const std::string& v, long lo) {
-  std::size_t used = 0;
-  long x = 0;
-  try {
-    x = std::stol(v, &used);
-  } catch (...) {
-    used = 0;
-  }
-  if (v.empty() || used != v.size() || x < lo)
-    throw UsageError("full_pipeline: " + flag + " expects an integer >= " + std::to_string(lo) + ", got '" + v + "'");
-  return x;
-}
+const std::string kUsage = std::string(
+    "usage: full_pipeline --colmap DIR [flags] --out DIR\n"
+    "       full_pipeline   (no arguments: embedded synthetic input -> ./out/pipeline)\n"
+    "  --prompt TEXT               the scene's description for the completion request\n") +
+                           cli::kPipelineFlagsUsage;
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string colmap, frames, out;
-  PipelineParams p;
-  int width = 0, height = 0;
-  bool iters_g1_set = false;
-  int holdout_every = 0;
-  std::array<double, 3> background{{-1, -1, -1}};
+  std::string colmap, out;
+  cli::PipelineFlags flags;
+  bool frames_set = false;
   try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string f = argv[i];
-      auto value = [&]() -> std::string {
-        if (i + 1 >= argc) throw UsageError("full_pipeline: " + f + " needs a value");
-        return argv[++i];
-      };
-      if (f == "--colmap") colmap = value();
-      else if (f == "--frames") frames = value();
-      else if (f == "--completion") {
-        p.completion = value();
-        if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
-            p.completion != "perturbed")
-          throw UsageError("full_pipeline: --completion must be external, oracle, perturbed or none, got '" +
-                           p.completion + "'");
-      } else if (f == "--prompt") p.prompt = value();
-      else if (f == "--width") width = int(to_long(f, value(), 8));
-      else if (f == "--height") height = int(to_long(f, value(), 8));
-      else if (f == "--iters") p.iters_g0 = int(to_long(f, value(), 1));
-      else if (f == "--iters-g1") {
-        p.iters_g1 = int(to_long(f, value(), 1));
-        iters_g1_set = true;
-      } else if (f == "--views") p.orbit.views = int(to_long(f, value(), 9));
-      else if (f == "--render-stride") p.render_stride = int(to_long(f, value(), 1));
-      else if (f == "--median-samples") p.median_samples = int(to_long(f, value(), 2));
-      else if (f == "--threads") p.threads = int(to_long(f, value(), 0));
-      else if (f == "--seed") p.seed = unsigned(to_long(f, value(), 0));
-      else if (f == "--static") p.deformable = false;
-      else if (f == "--holdout-every") holdout_every = int(to_long(f, value(), 0));
-      else if (f == "--g1-data") p.g1_data = parse_g1_data(value());
-      else if (f == "--g1-arc-renders") p.g1_arc_renders = true;
-      else if (f == "--g1-deformable") p.g1_deformable = true;
-      else if (f == "--g1-static") p.g1_deformable = false;
-      else if (f == "--compare-g1-paper") p.compare_g1_paper = true;
-      else if (f == "--oracle-bound") p.oracle_bound = true;
-      else if (f == "--g1-random-init") p.g1_from_gmed0 = false;
-      else if (f == "--quiet") p.progress = false;
-      else if (f == "--background") {
-        const std::string v = value();
-        if (std::sscanf(v.c_str(), "%lf,%lf,%lf", &background[0], &background[1], &background[2]) != 3)
-          throw UsageError("full_pipeline: --background expects r,g,b in [0, 1], got '" + v + "'");
-        for (double c : background)
-          if (!(c >= 0 && c <= 1)) throw UsageError("full_pipeline: --background components must be in [0, 1]");
-      } else if (f == "--out") out = value();
+    cli::begin_pipeline_flags("full_pipeline", argc, argv, flags);
+    cli::ArgWalker a("full_pipeline", argc, argv);
+    while (a.next()) {
+      const std::string f = a.flag();
+      if (f == "--frames") frames_set = true;
+      if (cli::parse_pipeline_flag("full_pipeline", a, flags)) continue;
+      if (f == "--colmap") colmap = a.value();
+      else if (f == "--prompt") flags.params.prompt = a.value();
+      else if (f == "--out") out = a.value();
       else if (f == "-h" || f == "--help") {
         std::cout << kUsage;
         return 0;
       } else
-        throw UsageError("full_pipeline: unknown argument '" + f + "'");
+        a.unknown();
     }
-    if (!iters_g1_set) p.iters_g1 = p.iters_g0;
-    if (colmap.empty() && !frames.empty()) throw UsageError("full_pipeline: --frames needs --colmap");
-  } catch (const UsageError& e) {
+    cli::end_pipeline_flags(flags);
+    if (colmap.empty() && frames_set) throw cli::UsageError("full_pipeline: --frames needs --colmap");
+  } catch (const cli::UsageError& e) {
     std::cerr << e.what() << "\n" << kUsage;
+    return 2;
+  } catch (const Error& e) {
+    std::cerr << "full_pipeline: " << e.what() << "\n" << kUsage;
     return 2;
   }
 
+  PipelineParams& p = flags.params;
   try {
     PipelineInput<S> input;
     if (colmap.empty()) {
       // The embedded default: small enough to finish in a few minutes on 2 cores.
       SyntheticInputParams sp;
-      sp.width = width > 0 ? width : 96;
-      sp.height = height > 0 ? height : 96;
+      sp.width = flags.width > 0 ? flags.width : 96;
+      sp.height = flags.height > 0 ? flags.height : 96;
       sp.focal = 160.0 * sp.height / 128.0;
       if (out.empty()) out = "out/pipeline";
       if (argc == 1) {
@@ -130,23 +80,22 @@ int main(int argc, char** argv) {
       }
       input = synthetic_pipeline_input<S>(sp, p.threads);
       if (p.prompt.empty()) p.prompt = "a striped capsule on a checkered floor";
+      withhold_every(input, flags.holdout_every);
+      const BackgroundEstimate bg = choose_background(input, flags.background ? &*flags.background : nullptr);
+      std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
+                   bg.reason.c_str());
     } else {
-      if (out.empty()) throw UsageError("full_pipeline: --out DIR is required with --colmap");
-      input = load_colmap_input<S>(colmap, frames.empty() ? std::string("1-33") : frames, width > 0 ? width : 512,
-                                   height > 0 ? height : 512);
+      if (out.empty()) throw cli::UsageError("full_pipeline: --out DIR is required with --colmap");
+      input = cli::load_recorded_input<S>("full_pipeline", colmap, flags);
     }
-    withhold_every(input, holdout_every);
-    const BackgroundEstimate bg = choose_background(input, background[0] >= 0 ? &background : nullptr);
-    std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
-                 bg.reason.c_str());
-    std::fprintf(stderr, "full_pipeline: %s -> %s (completion: %s)\n", input.description.c_str(), out.c_str(),
-                 p.completion.c_str());
+    std::fprintf(stderr, "full_pipeline: %s -> %s (protocol %s, completion %s)\n", input.description.c_str(),
+                 out.c_str(), protocol_name(flags.protocol), p.completion.c_str());
     const nlohmann::json r = run_pipeline(input, p, out);
     std::cout << report_markdown(r);
     std::fprintf(stderr, "full_pipeline: done; report in %s/report.md, scene in %s/final.ply\n", out.c_str(),
                  out.c_str());
     return 0;
-  } catch (const UsageError& e) {
+  } catch (const cli::UsageError& e) {
     std::cerr << e.what() << "\n" << kUsage;
     return 2;
   } catch (const PipelineStopped& e) {

@@ -36,6 +36,7 @@
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "cli.hpp"
+#include "pipeline_flags.hpp"
 
 using namespace orbitforge;
 using S = float;
@@ -46,20 +47,29 @@ const char* kUsage =
     "usage: reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]\n"
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
     "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH]\n"
-    "                   [--min-densify-interval N] --out DIR\n";
+    "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
+    "                   --out DIR\n"
+    "  --protocol paper: the DeformableGS backend's schedule, learning rates and 8 x 256 network, unscaled,\n"
+    "                    10,000 iterations, deformable, frames at their own size (flags given override)\n";
 
 using cli::UsageError;
 
 struct Args {
   std::string colmap, frames, out;
-  int holdout_every = 0, width = 512, height = 512, iters = 30000, median_samples = 128, threads = 0;
+  Protocol protocol = Protocol::measured;
+  int holdout_every = 0, width = 0, height = 0, iters = 30000, median_samples = 128, threads = 0;  // size 0: see load()
   int eval_every = 0;
-  int min_densify_interval = 1;  // floor of the budget-scaled densification interval (TrainParams)
+  // Floor of the budget-scaled densification interval, as the pipeline's: scaled to a
+  // few thousand iterations the published schedule densifies every 5-10 iterations,
+  // too soon for cloned Gaussians to settle, and few training views then clone a
+  // scene up to about a Gaussian per pixel (six 320x240 photographs: 375k).
+  int min_densify_interval = 50;
   unsigned seed = 0;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
   bool background_set = false;  // else estimated from the frames' borders
+  ScaleOffset scale_offset = ScaleOffset::log;
   DeformationFieldParams field = DeformationFieldParams::fast();
 };
 
@@ -83,6 +93,14 @@ double to_double(const std::string& flag, const std::string& v) { return cli::pa
 
 Args parse(int argc, char** argv) {
   Args a;
+  a.protocol = cli::scan_protocol("reconstruct", argc, argv);
+  if (a.protocol == Protocol::paper) {
+    a.iters = 10000;
+    a.deformable = true;
+    a.field = paper_train_params().field;
+    a.scale_offset = a.field.scale_offset;
+    a.min_densify_interval = 1;
+  }
   for (int i = 1; i < argc; ++i) {
     const std::string f = argv[i];
     auto value = [&]() -> std::string {
@@ -90,6 +108,7 @@ Args parse(int argc, char** argv) {
       return argv[++i];
     };
     if (f == "--colmap") a.colmap = value();
+    else if (f == "--protocol") value();  // read by scan_protocol
     else if (f == "--frames") a.frames = value();
     else if (f == "--holdout-every") a.holdout_every = int(to_long(f, value(), 2));
     else if (f == "--width") a.width = int(to_long(f, value(), 8));
@@ -105,6 +124,11 @@ Args parse(int argc, char** argv) {
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
     } else if (f == "--deformable") a.deformable = true;
     else if (f == "--field") a.field = parse_field(value());
+    else if (f == "--scale-offset") {
+      const std::string v = value();
+      if (v != "log" && v != "additive") throw UsageError("reconstruct: --scale-offset must be log or additive, got '" + v + "'");
+      a.scale_offset = v == "log" ? ScaleOffset::log : ScaleOffset::additive;
+    }
     else if (f == "--background") {
       a.background = cli::parse_rgb("reconstruct", f, value());
       a.background_set = true;
@@ -116,6 +140,9 @@ Args parse(int argc, char** argv) {
   }
   if (a.colmap.empty()) throw UsageError("reconstruct: --colmap DIR is required");
   if (a.out.empty()) throw UsageError("reconstruct: --out DIR is required");
+  if (a.width == 0 && a.height == 0 && !protocol_loads_native_size(a.protocol)) a.width = a.height = 512;
+  if (a.width == 0) a.width = a.height;
+  if (a.height == 0) a.height = a.width;
   return a;
 }
 
@@ -185,20 +212,23 @@ Eval evaluate_static(const GaussianScene<S>& scene, const std::vector<TrainFrame
 
 int run(const Args& a) {
   namespace fs = std::filesystem;
+  // Before any work: an output folder that cannot be created fails now, not after training.
+  fs::create_directories(a.out);
   const Dataset d = load(a);
   std::fprintf(stderr, "reconstruct: %zu training frames, %zu held out, %zu skipped, %zu of %zu COLMAP points, %dx%d%s\n",
-               d.train.size(), d.holdout.size(), d.skipped.size(), d.points.size() / 3, d.points_total, a.width,
-               a.height, a.deformable ? ", deformable" : "");
+               d.train.size(), d.holdout.size(), d.skipped.size(), d.points.size() / 3, d.points_total,
+               d.train.front().camera.intrinsics.width, d.train.front().camera.intrinsics.height, a.deformable ? ", deformable" : "");
   for (const auto& s : d.skipped) std::fprintf(stderr, "reconstruct: skipped %s: %s\n", s.name.c_str(), s.reason.c_str());
   std::fprintf(stderr, "reconstruct: background %.3f,%.3f,%.3f: %s\n", d.background.color[0], d.background.color[1],
                d.background.color[2], d.background.reason.c_str());
-  TrainParams p;
+  TrainParams p = a.protocol == Protocol::paper ? paper_train_params(a.iters) : TrainParams{};
   p.iterations = a.iters;
   p.seed = a.seed;
   p.threads = a.threads;
   p.background = d.background.color;
   p.deformable = a.deformable;
   p.field = a.field;
+  p.field.scale_offset = a.scale_offset;
   p.min_densify_interval = a.min_densify_interval;
   InitParams ip;
   ip.seed = a.seed;

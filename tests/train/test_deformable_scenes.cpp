@@ -38,6 +38,7 @@ Outcome train(const std::vector<TrainFrame<float>>& frames, const std::vector<Tr
   p.iterations = kIterations;
   p.threads = 2;
   p.deformable = deformable;
+  p.min_densify_interval = 50;  // as reconstruct and the pipeline
   p.field.depth = 3;
   p.field.width = 32;
   Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);

@@ -213,12 +213,15 @@ void select_source(PipelineInput<Scalar>& in, const std::string& range_text) {
 // holds images/). Frames are the image files of images/ in name order, with a
 // camera when the model registered them. `source_range` selects the source
 // frames (1-based frame numbers, e.g. "1-33"); every registered frame's image is
-// loaded and resized to width x height (intrinsics rescaled).
+// loaded and resized to width x height (intrinsics rescaled); 0 x 0 keeps the
+// frames' own size (every registered camera must then have one size).
 template <class Scalar>
 PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range, int width,
                                         int height) {
   namespace fs = std::filesystem;
-  ensure(width >= 8 && height >= 8, "load_colmap_input: working size ", width, "x", height, " is too small");
+  const bool native = width == 0 && height == 0;
+  ensure(native || (width >= 8 && height >= 8), "load_colmap_input: working size ", width, "x", height,
+         " is too small");
   const std::string model_dir = find_colmap_model_dir(dir);
   const ColmapModel model = read_colmap_model(model_dir);
   fs::path images = fs::path(dir) / "images";
@@ -226,6 +229,14 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   ensure(fs::is_directory(images), dir, ": no images/ folder next to the COLMAP model");
   const std::vector<FrameCamera<Scalar>> registered = colmap_frame_cameras<Scalar>(model);
   ensure(!registered.empty(), dir, ": the COLMAP model has no images");
+  if (native) {
+    width = registered.front().camera.intrinsics.width;
+    height = registered.front().camera.intrinsics.height;
+    for (const auto& fc : registered)
+      ensure(fc.camera.intrinsics.width == width && fc.camera.intrinsics.height == height, dir, ": image ", fc.name,
+             " is ", fc.camera.intrinsics.width, "x", fc.camera.intrinsics.height, ", the first is ", width, "x",
+             height, "; give a working size to load frames of several sizes");
+  }
 
   PipelineInput<Scalar> in;
   in.width = width;

@@ -1,0 +1,145 @@
+#pragma once
+// The flags full_pipeline and audit share, and the one way both load a recorded
+// input (a COLMAP folder): frames, working size, withheld frames, background.
+//
+// --protocol paper|measured is read first, wherever it stands: it sets every
+// value the paper fixes (pipeline/protocol.hpp), and the other flags given then
+// override single values of it.
+#include <array>
+#include <cstdio>
+#include <optional>
+#include <string>
+
+#include "cli.hpp"
+#include "orbitforge/pipeline/completion_providers.hpp"
+#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/params.hpp"
+#include "orbitforge/pipeline/protocol.hpp"
+
+namespace orbitforge::cli {
+
+inline const char* kPipelineFlagsUsage =
+    "  --protocol measured|paper   the library's measured defaults (default) or the method as published\n"
+    "  --frames A-B                source video frames (1-based, default 1-33)\n"
+    "  --width W --height H        working size of the frames (default 512 x 512; paper: the frames' own)\n"
+    "  --holdout-every K           withhold every K-th source frame from every reconstruction (0 = none)\n"
+    "  --completion oracle|perturbed|external|none\n"
+    "  --iters N --iters-g1 N      iterations of G0 and G1\n"
+    "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b\n"
+    "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
+    "  --g1-source-repeats N --g1-completion-repeats N\n"
+    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n";
+
+struct PipelineFlags {
+  Protocol protocol = Protocol::measured;
+  PipelineParams params;
+  std::string frames = "1-33";
+  int width = 0, height = 0;  // 0 = the protocol's choice
+  int holdout_every = 0;
+  bool iters_g1_set = false;
+  std::optional<std::array<double, 3>> background;
+};
+
+// The --protocol value anywhere on the command line (measured when absent).
+inline Protocol scan_protocol(const std::string& program, int argc, char** argv) {
+  Protocol p = Protocol::measured;
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) != "--protocol") continue;
+    if (i + 1 >= argc) throw UsageError(program + ": --protocol needs a value (paper or measured)");
+    try {
+      p = parse_protocol(argv[i + 1]);
+    } catch (const Error& e) {
+      throw UsageError(program + ": --protocol: " + e.what());
+    }
+  }
+  return p;
+}
+
+// Starts `f` from the protocol named on the command line.
+inline void begin_pipeline_flags(const std::string& program, int argc, char** argv, PipelineFlags& f) {
+  f.protocol = scan_protocol(program, argc, argv);
+  apply_protocol(f.params, f.protocol);
+}
+
+// Consumes the walker's current flag when it is a shared one; false otherwise.
+inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, PipelineFlags& f) {
+  PipelineParams& p = f.params;
+  const std::string flag = a.flag();
+  auto integer = [&](long lo) { return int(parse_int(program, flag, a.value(), lo)); };
+  if (flag == "--protocol") a.value();  // read by begin_pipeline_flags
+  else if (flag == "--frames") {
+    f.frames = a.value();
+    try {
+      parse_frame_range(f.frames);
+    } catch (const Error& e) {
+      throw UsageError(program + ": --frames: " + e.what());
+    }
+  } else if (flag == "--width") f.width = integer(8);
+  else if (flag == "--height") f.height = integer(8);
+  else if (flag == "--holdout-every") f.holdout_every = integer(0);
+  else if (flag == "--completion") {
+    p.completion = a.value();
+    if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
+        p.completion != "perturbed")
+      throw UsageError(program + ": --completion must be " + completion_provider_names() + ", got '" +
+                       p.completion + "'");
+  } else if (flag == "--iters") p.iters_g0 = integer(1);
+  else if (flag == "--iters-g1") {
+    p.iters_g1 = integer(1);
+    f.iters_g1_set = true;
+  } else if (flag == "--views") p.orbit.views = integer(9);
+  else if (flag == "--render-stride") p.render_stride = integer(1);
+  else if (flag == "--median-samples") p.median_samples = integer(2);
+  else if (flag == "--threads") p.threads = integer(0);
+  else if (flag == "--seed") p.seed = unsigned(integer(0));
+  else if (flag == "--static") p.deformable = false;
+  else if (flag == "--background") f.background = parse_rgb(program, flag, a.value());
+  else if (flag == "--g1-data") {
+    try {
+      p.g1_data = parse_g1_data(a.value());
+    } catch (const Error& e) {
+      throw UsageError(program + ": --g1-data: " + e.what());
+    }
+  } else if (flag == "--g1-arc-renders") p.g1_arc_renders = true;
+  else if (flag == "--g1-deformable") p.g1_deformable = true;
+  else if (flag == "--g1-static") p.g1_deformable = false;
+  else if (flag == "--g1-random-init") p.g1_from_gmed0 = false;
+  else if (flag == "--g1-source-repeats") p.g1_source_repeats = integer(1);
+  else if (flag == "--g1-completion-repeats") p.g1_completion_repeats = integer(1);
+  else if (flag == "--compare-g1-paper") p.compare_g1_paper = true;
+  else if (flag == "--oracle-bound") p.oracle_bound = true;
+  else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
+  else if (flag == "--quiet") p.progress = false;
+  else return false;
+  return true;
+}
+
+// After parsing: values that follow from others.
+inline void end_pipeline_flags(PipelineFlags& f) {
+  if (!f.iters_g1_set) f.params.iters_g1 = f.params.iters_g0;
+}
+
+// The working size a recorded input is loaded at: the flags', else the frames'
+// own under the paper's protocol (0 x 0), else 512 x 512.
+inline std::array<int, 2> working_size(const PipelineFlags& f) {
+  if (f.width > 0 || f.height > 0) return {f.width > 0 ? f.width : f.height, f.height > 0 ? f.height : f.width};
+  if (protocol_loads_native_size(f.protocol)) return {0, 0};
+  return {512, 512};
+}
+
+// A COLMAP folder as every pipeline program loads it.
+template <class Scalar>
+PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
+                                          const PipelineFlags& f) {
+  const auto size = working_size(f);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size[0], size[1]);
+  withhold_every(input, f.holdout_every);
+  const BackgroundEstimate bg = choose_background(input, f.background ? &*f.background : nullptr);
+  if (f.params.progress)
+    std::fprintf(stderr, "%s: %s, %dx%d, background %.3f,%.3f,%.3f: %s\n", program.c_str(),
+                 input.description.c_str(), input.width, input.height, bg.color[0], bg.color[1], bg.color[2],
+                 bg.reason.c_str());
+  return input;
+}
+
+}  // namespace orbitforge::cli
