@@ -8,6 +8,7 @@
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/core/simd.hpp"
+#include "orbitforge/core/version.hpp"
 #include "orbitforge/deform/deformation_field.hpp"
 #include "orbitforge/deform/median_baker.hpp"
 #include "orbitforge/geometry/completion_layout.hpp"

@@ -34,3 +34,12 @@ TEST_CASE("umbrella header: fit an orbit and render a scene through it", "[core]
   const auto fit = fit_orbit(in.recorded, op);
   REQUIRE(fit.cameras.size() == 361);
 }
+
+TEST_CASE("the version macro matches the CMake project version", "[core][version]") {
+  REQUIRE(std::string(ORBITFORGE_VERSION_STRING) == ORBITFORGE_CMAKE_VERSION);
+  REQUIRE(ORBITFORGE_VERSION == ORBITFORGE_VERSION_MAJOR * 10000 + ORBITFORGE_VERSION_MINOR * 100 +
+                                    ORBITFORGE_VERSION_PATCH);
+  REQUIRE(std::to_string(ORBITFORGE_VERSION_MAJOR) + "." + std::to_string(ORBITFORGE_VERSION_MINOR) + "." +
+              std::to_string(ORBITFORGE_VERSION_PATCH) ==
+          ORBITFORGE_VERSION_STRING);
+}
