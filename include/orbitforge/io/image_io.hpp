@@ -56,8 +56,17 @@
 #define STB_IMAGE_IMPLEMENTATION
 #define STB_IMAGE_WRITE_IMPLEMENTATION
 #endif
+// Debian installs stb under <stb/...>; other layouts put the headers on the
+// include path directly. Either works without extra include flags.
+#if __has_include(<stb_image.h>)
 #include <stb_image.h>
 #include <stb_image_write.h>
+#elif __has_include(<stb/stb_image.h>)
+#include <stb/stb_image.h>
+#include <stb/stb_image_write.h>
+#else
+#error "orbitforge/io/image_io.hpp needs stb_image.h and stb_image_write.h (Debian: libstb-dev)"
+#endif
 #ifndef ORBITFORGE_NO_STB_IMPLEMENTATION
 #undef STB_IMAGE_IMPLEMENTATION
 #undef STB_IMAGE_WRITE_IMPLEMENTATION
