@@ -178,6 +178,15 @@ TEMPLATE_TEST_CASE("fit_orbit: degenerate inputs give clear errors", "[geometry]
   using Vec3 = Eigen::Matrix<S, 3, 1>;
   SyntheticOrbit<S> o;
   const auto src = o.cameras();
+  SECTION("cameras without an image size: the error says so, with a count and an example") {
+    auto no_size = src;
+    for (auto& f : no_size) f.camera.intrinsics.width = f.camera.intrinsics.height = 0;
+    no_size[3].valid = false;
+    REQUIRE_THROWS_WITH(fit_orbit(no_size), Catch::Contains("got 0 of " + std::to_string(src.size())) &&
+                                                Catch::Contains(std::to_string(src.size() - 1) +
+                                                                " skipped: unknown image size (e.g. '001.jpg')") &&
+                                                Catch::Contains("1 skipped: not registered (e.g. '004.jpg')"));
+  }
   SECTION("one or two cameras") {
     REQUIRE_THROWS_WITH(fit_orbit(std::vector<FrameCamera<S>>(src.begin(), src.begin() + 1)),
                         Catch::Contains("at least 3 usable"));

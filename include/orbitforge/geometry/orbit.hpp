@@ -32,7 +32,9 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -54,9 +56,10 @@ enum class OrbitCenter { look_at, circle };
 inline const char* orbit_center_name(OrbitCenter c) { return c == OrbitCenter::look_at ? "look_at" : "circle"; }
 
 struct OrbitParams {
-  int views = 361;
-  int width = 896, height = 512;
-  double elevation_offset_deg = 10;
+  int views = 361;                   // the paper's N: 0, 1, ..., 360 degrees (the last repeats the first)
+  int width = 896, height = 512;     // the paper's canonical render size
+  double elevation_offset_deg = 10;  // the paper's: canonical cameras sit 10 degrees above the source plane
+                                     // (0 keeps them at the source cameras' height)
   CircleFitMethod circle_fit = CircleFitMethod::geometric;
   OrbitCenter center = OrbitCenter::look_at;
   std::optional<ForwardConvention> convention;  // empty: select automatically
@@ -251,8 +254,18 @@ OrbitFit<Scalar> fit_orbit(const std::vector<FrameCamera<Scalar>>& source, const
     fit.diagnostics.cameras_skipped.push_back(s.name);
     fit.diagnostics.skipped_reasons.push_back(s.reason);
   }
-  ensure(ok.indices.size() >= 3, "fit_orbit: need at least 3 usable source cameras, got ", ok.indices.size(), " of ",
-         source.size());
+  if (ok.indices.size() < 3) {
+    // Say why the others were skipped: the reasons, each with how many cameras and a first example.
+    std::map<std::string, std::pair<int, std::string>> why;
+    for (const auto& s : ok.skipped) {
+      auto& w = why[s.reason];
+      if (w.first++ == 0) w.second = s.name;
+    }
+    std::ostringstream os;
+    for (const auto& [reason, w] : why)
+      os << "; " << w.first << " skipped: " << reason << " (e.g. '" << w.second << "')";
+    fail("fit_orbit: need at least 3 usable source cameras, got ", ok.indices.size(), " of ", source.size(), os.str());
+  }
   std::vector<Camera<Scalar>> cams;
   for (int i : ok.indices) cams.push_back(source[i].camera);
   fit.diagnostics.cameras_used = int(cams.size());
