@@ -1,7 +1,7 @@
 #pragma once
 // A plain, obviously correct reference for the per-pixel stages: for every pixel,
 // walk ALL Gaussians sorted by (depth, index) and blend with the rules of
-// shared/DESIGN.md. No tiles, no SIMD, no threads, no early culling beyond the
+// docs/conventions.md. No tiles, no SIMD, no threads, no early culling beyond the
 // rect test. Plus helpers that build random ProjectedSplats for tests.
 #include <algorithm>
 #include <array>

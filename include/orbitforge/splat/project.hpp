@@ -28,7 +28,7 @@
 // Gradients (project_scene_vjp) are w.r.t. exactly what the adaptor returns.
 // ---------------------------------------------------------------------------
 //
-// Conventions (shared/DESIGN.md "Numerical conventions for the renderer"):
+// Conventions (docs/conventions.md):
 //   camera space t = R x + t_cam (OpenCV axes); culled when t_z <= near (0.01).
 //   u = fx t_x / t_z + cx, v = fy t_y / t_z + cy; pixel i has its centre at i + 0.5.
 //   Sigma = R_q diag(s^2) R_q^T, cov2d = J W Sigma W^T J^T + 0.3 I, where the EWA

@@ -2,7 +2,7 @@
 // Per-tile forward rasterization (front-to-back alpha blending), multi-threaded
 // over tiles and SIMD over the pixels of a tile.
 //
-// Rules (shared/DESIGN.md, "Numerical conventions for the renderer"): pixel
+// Rules (docs/conventions.md): pixel
 // (x, y) has its centre at (x + 0.5, y + 0.5); for each Gaussian of the pixel's
 // tile in depth order whose rect contains the pixel,
 //   power = -0.5 (a dx^2 + c dy^2) - b dx dy        (skip power > 0)
