@@ -3,7 +3,7 @@
 //
 //   mse        mean (a - b)^2 over pixels and channels
 //   psnr       10 log10(1 / MSE) dB; +infinity for identical images (MSE == 0)
-//   ssim       the training SSIM of train/losses.hpp (11x11 Gaussian, sigma 1.5, zero
+//   ssim       the training SSIM of image/ssim.hpp (11x11 Gaussian, sigma 1.5, zero
 //              padding, mean over pixels and channels), evaluated in double
 //   mae_255    mean |a - b| * 255: the "L1 on the 0-255 scale" of the paper's
 //              adjacent-frame and loop-endpoint diagnostics
@@ -20,7 +20,7 @@
 
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
-#include "orbitforge/train/losses.hpp"
+#include "orbitforge/image/ssim.hpp"
 
 namespace orbitforge {
 
@@ -68,7 +68,7 @@ double mae_255(const Image<Scalar>& a, const Image<Scalar>& b) {
   return 255.0 * s / double(a.data.size());
 }
 
-// SSIM as in train/losses.hpp, always evaluated in double (no float cancellation in
+// SSIM as in image/ssim.hpp, always evaluated in double (no float cancellation in
 // the variance terms); symmetric in a and b.
 template <class Scalar>
 double ssim_metric(const Image<Scalar>& a, const Image<Scalar>& b, int threads = 0) {

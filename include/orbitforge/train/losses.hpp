@@ -6,29 +6,8 @@
 //   combined_loss  (1 - lambda) L1 + lambda (1 - SSIM), lambda = 0.2 (3DGS)
 //
 // each with its vector-Jacobian product with respect to `pred` (the rendered image);
-// `target` is a constant.
-//
-// SSIM follows the usual PyTorch 3DGS implementation exactly: an 11x11 Gaussian window
-// (sigma 1.5, the outer product of a normalised 1D Gaussian, so it sums to 1),
-// C1 = 0.01^2, C2 = 0.03^2, each channel separately, and conv2d with padding = 5:
-// pixels outside the image count as zero in every windowed sum (of x, y, x^2, y^2, xy)
-// and the window weights are NOT renormalised near the border. So SSIM near the border
-// differs from a "valid-window" SSIM; this is deliberate, to match the published losses.
-//
-//   mu_x = G*x, mu_y = G*y, s_xx = G*(x^2) - mu_x^2, s_yy = G*(y^2) - mu_y^2,
-//   s_xy = G*(xy) - mu_x mu_y,
-//   ssim = (2 mu_x mu_y + C1)(2 s_xy + C2) / ((mu_x^2 + mu_y^2 + C1)(s_xx + s_yy + C2)).
-//
-// The 2D filter runs as two 1D passes (rows, then columns), which is exact for a
-// separable window under zero padding. The backward pass filters three per-pixel
-// derivative maps with the same window: zero-padded convolution with a symmetric
-// window is its own adjoint. Rows of the intermediate maps are planar ([map][x]), so
-// the per-pixel SSIM arithmetic runs on contiguous arrays and vectorises (the
-// interleaved [x][map] layout left it scalar, most of the loss's time).
-// All work is split over rows with parallel_for; partial
-// sums are kept per row and added in row order, so results do not depend on the thread
-// count. A caller-owned SsimWorkspace holds every buffer: after the first call at a
-// given size nothing allocates.
+// `target` is a constant. SSIM itself (window, constants, border rule,
+// workspace) is image/ssim.hpp.
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
@@ -38,29 +17,9 @@
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/core/simd.hpp"
+#include "orbitforge/image/ssim.hpp"
 
 namespace orbitforge {
-
-struct SsimParams {
-  int window = 11;      // window side in pixels (odd)
-  double sigma = 1.5;   // Gaussian standard deviation in pixels
-  double c1 = 0.01 * 0.01;
-  double c2 = 0.03 * 0.03;
-};
-
-// Buffers reused across calls. One workspace serves one forward/backward pair at a
-// time; ssim_vjp reads what the preceding ssim call on the same images left here.
-template <class Scalar>
-struct SsimWorkspace {
-  int width = 0, height = 0, channels = 0;  // shape of the last forward pass
-  bool forward_done = false;
-  SsimParams params;                        // params of the last forward pass
-  std::vector<Scalar> window;               // [window] normalised 1D weights
-  std::vector<Scalar> dmaps;                // [H][3C][W] d mean-SSIM / d(mu_x, G*x^2, G*xy)
-  std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
-  std::vector<double> row_sums;             // [H] per-row partial sums
-  std::vector<double> abs_rows, sq_rows;    // [H] combined_loss: per-row sums of |d| and d^2
-};
 
 // The components of combined_loss, for progress reports.
 template <class Scalar>
@@ -73,134 +32,8 @@ struct LossTerms {
 
 namespace losses_detail {
 
-inline void check_pair(const char* who, int pw, int ph, int pc, int tw, int th, int tc) {
-  ensure(pw == tw && ph == th && pc == tc, who, ": prediction is ", pw, "x", ph, "x", pc,
-         " but target is ", tw, "x", th, "x", tc);
-  ensure(pw > 0 && ph > 0 && pc > 0, who, ": empty image ", pw, "x", ph, "x", pc);
-}
-
-template <class Scalar>
-void check_images(const char* who, const Image<Scalar>& pred, const Image<Scalar>& target) {
-  check_pair(who, pred.width, pred.height, pred.channels, target.width, target.height, target.channels);
-  ensure(pred.data.size() == pred.pixel_count() * std::size_t(pred.channels) &&
-             target.data.size() == target.pixel_count() * std::size_t(target.channels),
-         who, ": image data size does not match its width x height x channels");
-}
-
-// Normalised 1D Gaussian of `size` taps centred on size/2.
-template <class Scalar>
-void gaussian_window(const SsimParams& p, std::vector<Scalar>& w) {
-  ensure(p.window >= 1 && p.window % 2 == 1, "ssim: window size must be odd and positive, got ", p.window);
-  ensure(p.sigma > 0 && std::isfinite(p.sigma), "ssim: sigma must be positive, got ", p.sigma);
-  w.resize(std::size_t(p.window));
-  const int r = p.window / 2;
-  double sum = 0;
-  std::vector<double> g(std::size_t(p.window));
-  for (int k = 0; k < p.window; ++k) {
-    const double d = k - r;
-    g[std::size_t(k)] = std::exp(-d * d / (2 * p.sigma * p.sigma));
-    sum += g[std::size_t(k)];
-  }
-  for (int k = 0; k < p.window; ++k) w[std::size_t(k)] = Scalar(g[std::size_t(k)] / sum);
-}
-
-// out[i] = w[r] centre[i] + sum_{d = 1..r} w[r + d] (lo[d][i] + hi[d][i]) for i in
-// [0, n): a symmetric window applied through per-tap row pointers (the window
-// is symmetric, so taps are added in pairs, d = 1 .. r in order). Each output
-// vector sums all its taps in a register; one load/store pass per tap over out[]
-// was load/store bound.
-template <class Scalar>
-void symmetric_taps(const Scalar* centre, const Scalar* const* lo, const Scalar* const* hi, Scalar* out,
-                    std::size_t n, const Scalar* w, int r) {
-  using B = simd::native_batch<Scalar>;
-  const Scalar wc = w[r];
-  std::size_t i = 0;
-  for (; i + B::size <= n; i += B::size) {
-    B acc = B(wc) * B::load_unaligned(centre + i);
-    for (int d = 1; d <= r; ++d)
-      acc = simd::fma(B(w[r + d]), B::load_unaligned(lo[d] + i) + B::load_unaligned(hi[d] + i), acc);
-    acc.store_unaligned(out + i);
-  }
-  for (; i < n; ++i) {
-    Scalar acc = wc * centre[i];
-    for (int d = 1; d <= r; ++d) acc = std::fma(w[r + d], lo[d][i] + hi[d][i], acc);
-    out[i] = acc;
-  }
-}
-
-// out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
-// for each of `planes` consecutive rows of `width` values. lo, hi: r + 1
-// pointers of scratch.
-template <class Scalar>
-void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r,
-                const Scalar** lo, const Scalar** hi) {
-  // One output with taps cut at the row's ends.
-  auto edge = [&](const Scalar* row, int i) {
-    Scalar acc = w[r] * row[i];
-    for (int d = 1; d <= r; ++d) {
-      const Scalar a = i - d >= 0 ? row[i - d] : Scalar(0), b = i + d < width ? row[i + d] : Scalar(0);
-      acc = std::fma(w[r + d], a + b, acc);
-    }
-    return acc;
-  };
-  const int begin = std::min(r, width), end = std::max(begin, width - r);  // [begin, end): every tap inside
-  for (int p = 0; p < planes; ++p, in += width, out += width) {
-    for (int i = 0; i < begin; ++i) out[i] = edge(in, i);
-    for (int d = 1; d <= r; ++d) {
-      lo[d] = in + begin - d;
-      hi[d] = in + begin + d;
-    }
-    symmetric_taps(in + begin, lo, hi, out + begin, std::size_t(end - begin), w, r);
-    for (int i = end; i < width; ++i) out[i] = edge(in, i);
-  }
-}
-
-// The 2D filter over bands of rows, without materialising the row-filtered
-// image: each worker keeps the last 2r + 1 row-filtered rows of its band in a
-// ring (a few hundred KB, cache resident) and filters along columns from there.
-// A full-image intermediate made the loss memory bound (it scaled 1.3x on two
-// cores). Bands overlap by r rows on each side, which are filtered twice.
-//   source(y, scratch) -> pointer to row y's `planes` x W values (may fill scratch)
-//   sink(y, filtered, scratch) gets row y filtered in 2D and a W-value scratch.
-// Each output row is the same sum in the same order whatever the banding, so the
-// results do not depend on the thread count.
-template <class Scalar, class Source, class Sink>
-void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
-                    Source&& source, Sink&& sink) {
-  const std::size_t len = std::size_t(planes) * std::size_t(W);
-  const int win = 2 * r + 1;
-  const std::size_t need = std::size_t(win + 3) * len + std::size_t(W);
-  if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
-  for (auto& b : ws.rows)
-    if (b.size() < need) b.resize(need);
-  // Bands of at least 64 rows keep the overlap small; 4 per thread balance the load.
-  const int bands = std::max(1, std::min(4 * threads, H / 64));
-  parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
-    Scalar* ring = ws.rows[std::size_t(worker)].data();
-    Scalar* raw = ring + std::size_t(win) * len;
-    Scalar* col = raw + len;
-    Scalar* zeros = col + len;
-    Scalar* scratch = zeros + len;
-    std::fill(zeros, zeros + len, Scalar(0));
-    std::vector<const Scalar*> above(std::size_t(r) + 1), below(std::size_t(r) + 1);
-    const int y0 = int(std::size_t(H) * band / std::size_t(bands));
-    const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
-    auto ring_row = [&](int y) { return ring + std::size_t(y % win) * len; };
-    int next = std::max(0, y0 - r);  // next source row to filter into the ring
-    for (int y = y0; y < y1; ++y) {
-      for (; next <= std::min(H - 1, y + r); ++next)
-        filter_row(source(next, raw), ring_row(next), W, planes, w, r, above.data(), below.data());
-      // Along the column: rows missing at the image's top or bottom read a zero row.
-      for (int d = 1; d <= r; ++d) {
-        above[d] = y - d >= 0 ? ring_row(y - d) : zeros;
-        below[d] = y + d < H ? ring_row(y + d) : zeros;
-      }
-      symmetric_taps(ring_row(y), above.data(), below.data(), col, len, w, r);
-      sink(y, col, scratch);
-    }
-  });
-}
-
+using ssim_detail::check_images;
+using ssim_detail::sum_in_order;
 
 // Sums of |a - b| and (a - b)^2 over n values, vectorised explicitly (GCC keeps
 // float reductions scalar, and these run on every training step).
@@ -246,54 +79,6 @@ void add_sign_gradient(const Scalar* a, const Scalar* b, Scalar* v, std::size_t 
     const Scalar d = a[i] - b[i];
     v[i] += d > 0 ? g : (d < 0 ? -g : Scalar(0));
   }
-}
-
-// The five planar products of one interleaved row (planes x, y, x^2, y^2, xy,
-// each C channels). CC > 0 fixes the channel count at compile time, which lets
-// the compiler vectorise the stride-C loads.
-template <int CC, class Scalar>
-void products_row(const Scalar* __restrict x, const Scalar* __restrict t, Scalar* __restrict prod, std::size_t W,
-                  int channels) {
-  const std::size_t C = CC > 0 ? std::size_t(CC) : std::size_t(channels);
-  for (std::size_t c = 0; c < C; ++c) {
-    Scalar* __restrict px_ = prod + c * W;
-    Scalar* __restrict py_ = prod + (C + c) * W;
-    Scalar* __restrict pxx = prod + (2 * C + c) * W;
-    Scalar* __restrict pyy = prod + (3 * C + c) * W;
-    Scalar* __restrict pxy = prod + (4 * C + c) * W;
-    for (std::size_t px = 0; px < W; ++px) {
-      const Scalar a = x[px * C + c], b = t[px * C + c];
-      px_[px] = a;
-      py_[px] = b;
-      pxx[px] = a * a;
-      pyy[px] = b * b;
-      pxy[px] = a * b;
-    }
-  }
-}
-
-// v (interleaved row) = v_ssim (f0 + 2 x f1 + t f2) per channel from planar f
-// (planes f0, f1, f2, each C channels); added to v when accumulate.
-template <int CC, class Scalar>
-void ssim_gradient_row(const Scalar* __restrict f, const Scalar* __restrict x, const Scalar* __restrict t,
-                       Scalar* __restrict v, std::size_t W, int channels, Scalar v_ssim, bool accumulate) {
-  const std::size_t C = CC > 0 ? std::size_t(CC) : std::size_t(channels);
-  for (std::size_t c = 0; c < C; ++c) {
-    const Scalar* __restrict f0 = f + c * W;
-    const Scalar* __restrict f1 = f + (C + c) * W;
-    const Scalar* __restrict f2 = f + (2 * C + c) * W;
-    for (std::size_t px = 0; px < W; ++px) {
-      const std::size_t i = px * C + c;
-      const Scalar g = v_ssim * (f0[px] + 2 * x[i] * f1[px] + t[i] * f2[px]);
-      v[i] = accumulate ? v[i] + g : g;
-    }
-  }
-}
-
-inline double sum_in_order(const std::vector<double>& v, std::size_t n) {
-  double s = 0;
-  for (std::size_t i = 0; i < n; ++i) s += v[i];
-  return s;
 }
 
 }  // namespace losses_detail
@@ -343,143 +128,6 @@ void l1_loss_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar 
     const Scalar s = d > 0 ? g : (d < 0 ? -g : Scalar(0));
     v[i] = accumulate ? v[i] + s : s;
   }
-}
-
-// ---------------------------------------------------------------- SSIM
-
-// inputs: pred, target [H][W][C] (values nominally in [0, 1]; C1, C2 assume range 1).
-// Returns mean SSIM over pixels and channels. Leaves in `ws` what ssim_vjp needs.
-// threads: 0 = default (see parallel_for).
-template <class Scalar>
-Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
-            const SsimParams& params = {}, int threads = 0) {
-  using namespace losses_detail;
-  check_images("ssim", pred, target);
-  const int W = pred.width, H = pred.height, C = pred.channels;
-  const int S5 = 5 * C, S3 = 3 * C;
-  threads = resolve_threads(threads);
-
-  gaussian_window<Scalar>(params, ws.window);
-  ws.dmaps.resize(std::size_t(W) * S3 * std::size_t(H));
-  ws.row_sums.resize(std::size_t(H));
-  ws.width = W;
-  ws.height = H;
-  ws.channels = C;
-  ws.params = params;
-  ws.forward_done = false;
-
-  const Scalar* w = ws.window.data();
-  const int r = params.window / 2;
-  const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
-  const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
-
-  // Per row: the five per-pixel products (planes x, y, x^2, y^2, xy, each C
-  // channels), filtered in 2D, then the SSIM map and its derivatives with respect
-  // to mu_x, G*x^2 and G*xy (already divided by the pixel-channel count).
-  const std::size_t Wz = std::size_t(W);
-  auto products = [&](int y, Scalar* prod) -> const Scalar* {
-    const Scalar* x = pred.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    const Scalar* t = target.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    if (C == 3) products_row<3>(x, t, prod, Wz, C);
-    else products_row<0>(x, t, prod, Wz, C);
-    return prod;
-  };
-  auto ssim_row = [&](int yi, const Scalar* m, Scalar* vals) {
-    const std::size_t y = std::size_t(yi);
-    Scalar* dm = ws.dmaps.data() + y * Wz * std::size_t(S3);
-    double row_sum = 0;
-    for (int c = 0; c < C; ++c) {
-      const Scalar* __restrict mmx = m + std::size_t(c) * Wz;
-      const Scalar* __restrict mmy = m + std::size_t(C + c) * Wz;
-      const Scalar* __restrict mxx = m + std::size_t(2 * C + c) * Wz;
-      const Scalar* __restrict myy = m + std::size_t(3 * C + c) * Wz;
-      const Scalar* __restrict mxy = m + std::size_t(4 * C + c) * Wz;
-      Scalar* __restrict d0 = dm + std::size_t(c) * Wz;
-      Scalar* __restrict d1 = dm + std::size_t(C + c) * Wz;
-      Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * Wz;
-      // Explicit SIMD: GCC leaves this loop scalar ("no vectype"), and it was
-      // most of the loss's time.
-      auto ssim_at = [&](auto lanes, std::size_t px) {
-        using B = decltype(lanes);
-        const B mx = B::load_unaligned(mmx + px), my = B::load_unaligned(mmy + px);
-        const B sxx = B::load_unaligned(mxx + px) - mx * mx;
-        const B syy = B::load_unaligned(myy + px) - my * my;
-        const B sxy = B::load_unaligned(mxy + px) - mx * my;
-        const B two(Scalar(2));
-        const B a1 = two * mx * my + B(c1), a2 = two * sxy + B(c2);
-        const B b1 = mx * mx + my * my + B(c1), b2 = sxx + syy + B(c2);
-        const B inv = B(Scalar(1)) / (b1 * b2);
-        const B val = a1 * a2 * inv;
-        val.store_unaligned(vals + px);
-        // d val / d mu_x holding G*x^2 and G*xy fixed (they carry their own terms).
-        (B(scale) * (two * my * (a2 - a1) * inv - val * (two * mx / b1 - two * mx / b2))).store_unaligned(d0 + px);
-        (B(scale) * (-val / b2)).store_unaligned(d1 + px);       // d val / d (G*x^2)
-        (B(scale) * (two * a1 * inv)).store_unaligned(d2 + px);  // d val / d (G*xy)
-      };
-      using VB = simd::native_batch<Scalar>;
-      std::size_t px = 0;
-      for (; px + VB::size <= Wz; px += VB::size) ssim_at(VB(), px);
-      for (; px < Wz; ++px) ssim_at(simd::scalar_batch<Scalar>(), px);
-      // A separate sum keeps the loop above free of a float reduction, which
-      // compilers do not vectorise without reassociating.
-      Scalar plane_sum = 0;
-      for (std::size_t px = 0; px < Wz; ++px) plane_sum += vals[px];
-      row_sum += double(plane_sum);
-    }
-    ws.row_sums[y] = row_sum;
-  };
-  filter_2d_rows(ws, W, H, S5, w, r, threads, products, ssim_row);
-
-  const double total = sum_in_order(ws.row_sums, std::size_t(H));
-  ws.forward_done = true;
-  return Scalar(total * double(scale));
-}
-
-// inputs:      pred, target [H][W][C], exactly as passed to the preceding ssim() call
-//              that filled `ws` (same params)
-// grad output: v_ssim (scalar)
-// grad input:  v_pred [H][W][C] (resized; overwritten, or added to when accumulate)
-template <class Scalar>
-void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
-              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
-  using namespace losses_detail;
-  check_images("ssim_vjp", pred, target);
-  ensure(ws.forward_done && ws.width == pred.width && ws.height == pred.height && ws.channels == pred.channels,
-         "ssim_vjp: the workspace holds no forward pass for a ", pred.width, "x", pred.height, "x",
-         pred.channels, " image (call ssim() first with the same images and workspace)");
-  if (accumulate) {
-    ensure(v_pred.same_shape(pred) && v_pred.data.size() == pred.data.size(),
-           "ssim_vjp: accumulate into a gradient image of a different shape");
-  } else if (!v_pred.same_shape(pred) || v_pred.data.size() != pred.data.size()) {
-    v_pred = Image<Scalar>(pred.width, pred.height, pred.channels);
-  }
-  const int W = pred.width, H = pred.height, C = pred.channels;
-  const int S3 = 3 * C;
-  const std::size_t row3 = std::size_t(W) * S3;
-  threads = resolve_threads(threads);
-  const Scalar* w = ws.window.data();
-  const int r = ws.params.window / 2;
-
-  // The forward maps are windowed sums, so the adjoint filters the derivative maps with
-  // the same (symmetric, zero-padded) window.
-  auto dmap_row = [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; };
-  auto gradient_row = [&](int yi, const Scalar* f, Scalar*) {
-    const std::size_t at = std::size_t(yi) * std::size_t(W) * std::size_t(C);
-    const Scalar* x = pred.data.data() + at;
-    const Scalar* t = target.data.data() + at;
-    Scalar* v = v_pred.data.data() + at;
-    if (C == 3) ssim_gradient_row<3>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
-    else ssim_gradient_row<0>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
-  };
-  filter_2d_rows(ws, W, H, S3, w, r, threads, dmap_row, gradient_row);
-}
-
-// Convenience for one-off evaluation (metrics): allocates its own workspace.
-template <class Scalar>
-Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, const SsimParams& params = {},
-            int threads = 0) {
-  SsimWorkspace<Scalar> ws;
-  return ssim(pred, target, ws, params, threads);
 }
 
 // ---------------------------------------------------------------- combined
