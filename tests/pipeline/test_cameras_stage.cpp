@@ -22,7 +22,8 @@
 
 using namespace orbitforge;
 
-// A named namespace: the layer's test files are compiled as one unity source.
+// The test cases too live in a named namespace: the layer's test files are compiled as
+// one unity source, so nothing here may reach another file's names.
 namespace cameras_stage_test {
 namespace fs = std::filesystem;
 
@@ -82,9 +83,6 @@ bool have_programs(const std::vector<std::string>& programs) {
   return true;
 }
 
-}  // namespace cameras_stage_test
-
-using namespace cameras_stage_test;
 
 TEST_CASE("cameras stage: ffmpeg and colmap commands are argument vectors", "[pipeline][cameras]") {
   const std::string video = "/data/my clip's.mp4";
@@ -288,3 +286,5 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
   WARN("cameras stage end to end: " << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
                                     << " s, " << r.registered_names.size() << " of 10 registered");
 }
+
+}  // namespace cameras_stage_test

@@ -16,7 +16,8 @@
 
 using namespace orbitforge;
 
-// A named namespace: the layer's test files are compiled as one unity source.
+// The test cases too live in a named namespace: the layer's test files are compiled as
+// one unity source, so nothing here may reach another file's names.
 namespace frame_inputs_test {
 namespace fs = std::filesystem;
 
@@ -48,9 +49,6 @@ std::vector<FrameCamera<double>> write_frames(const fs::path& dir) {
   return cams;
 }
 
-}  // namespace frame_inputs_test
-
-using namespace frame_inputs_test;
 
 TEST_CASE("frame inputs: transforms.json with an image folder, matched by file name", "[pipeline][input]") {
   Folder f;
@@ -124,3 +122,5 @@ TEST_CASE("frame inputs: npy arrays, camera i for the i-th image, intrinsics fro
   CHECK_THROWS_WITH(load_npy_input<float>(ext, intr, (f.root / "frames").string(), 0, 0, "1-5", 16, 12),
                     Catch::Contains("5 cameras but"));
 }
+
+}  // namespace frame_inputs_test
