@@ -1,22 +1,35 @@
-// full_pipeline: the whole method, from a recorded source video with estimated
-// cameras to a closed-orbit Gaussian Splatting scene (final.ply) with a report.
+// full_pipeline: the whole method, from a source video to a closed-orbit
+// Gaussian Splatting scene (final.ply) with a report.
 //
-//   full_pipeline --colmap DIR [--protocol measured|paper] [--frames A-B] [--completion ...]
+//   full_pipeline --video FILE | --images DIR | --colmap DIR | --transforms FILE [--images DIR]
+//                 | --images DIR --npy-extrinsics F --npy-intrinsics F
+//                 [--protocol measured|paper] [--frames A-B] [--completion ...]
 //                 [--holdout-every K] [--prompt TEXT] [...] --out DIR   (--help lists every flag)
 //   full_pipeline            (no arguments: the embedded synthetic input, oracle completion,
 //                             small size, writes ./out/pipeline)
+//
+// --video and --images alone estimate the cameras of the source frames with
+// COLMAP (stage "cameras", pipeline/stages/cameras.hpp; needs the ffmpeg and
+// colmap programs); the other frames get no camera, so the completion defaults
+// to external and the oracle providers cannot be used.
 //
 // A second run with the same arguments skips every finished stage. With
 // --completion external the run stops after writing the completion request
 // (exit status 3); run it again once the completed frames are in place.
 // Errors: a message and exit status 2 (arguments) or 1 (inputs).
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <string>
 
 #include "cli.hpp"
 #include "orbitforge/pipeline/completion_providers.hpp"
+#include "orbitforge/pipeline/external_tools.hpp"
+#include "orbitforge/pipeline/frame_inputs.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
+#include "orbitforge/pipeline/stages/cameras.hpp"
 #include "pipeline_flags.hpp"
 
 using namespace orbitforge;
@@ -25,25 +38,89 @@ using S = float;
 namespace {
 
 const std::string kUsage = std::string(
-    "usage: full_pipeline --colmap DIR [flags] --out DIR\n"
+    "usage: full_pipeline INPUT [flags] --out DIR\n"
     "       full_pipeline   (no arguments: embedded synthetic input -> ./out/pipeline)\n"
+    "INPUT, the recorded video (frames in name order; --frames picks the source):\n"
+    "  --video FILE                a video ffmpeg reads; frames -> OUT/cameras/images, cameras of the\n"
+    "                              source frames only by COLMAP (needs the ffmpeg and colmap programs)\n"
+    "  --images DIR                a folder of frames; cameras of the source frames by COLMAP\n"
+    "  --colmap DIR                a COLMAP dataset (images/ + sparse/0) with cameras already estimated\n"
+    "  --transforms FILE [--images DIR]   cameras from transforms.json (frames: its file_paths, or DIR)\n"
+    "  --images DIR --npy-extrinsics F --npy-intrinsics F [--npy-size WxH]\n"
+    "                              VGGT-style arrays, camera i for the i-th image of DIR; WxH is the\n"
+    "                              size the estimator saw (default: the frames')\n"
+    "  --fps R                     --video: resample to R frames per second (default: every frame)\n"
+    "  --camera-model SIMPLE_PINHOLE|PINHOLE   COLMAP's one camera (default SIMPLE_PINHOLE)\n"
+    "  With --video or --images alone only the source frames get cameras: --completion defaults to\n"
+    "  external (oracle and perturbed need recorded cameras for the gap frames).\n"
     "  --prompt TEXT               the scene's description for the completion request\n") +
                            cli::kPipelineFlagsUsage;
+
+struct Inputs {
+  std::string colmap, video, images, transforms, npy_ext, npy_int, npy_size, camera_model = "SIMPLE_PINHOLE";
+  double fps = 0;
+  bool camera_model_set = false;
+  bool npy() const { return !npy_ext.empty() || !npy_int.empty(); }
+  // COLMAP estimates the cameras: a video, or an image folder without cameras of its own.
+  bool estimate_cameras() const { return !video.empty() || (!images.empty() && transforms.empty() && !npy()); }
+  bool recorded() const { return !colmap.empty() || !video.empty() || !images.empty() || !transforms.empty() || npy(); }
+};
+
+void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames_set, bool completion_set) {
+  auto usage = [](bool ok, const std::string& m) {
+    if (!ok) throw cli::UsageError("full_pipeline: " + m);
+  };
+  const bool npy = in.npy();
+  usage(in.colmap.empty() || (in.video.empty() && in.images.empty() && in.transforms.empty() && !npy),
+        "--colmap is an input on its own (not with --video, --images, --transforms or --npy-*)");
+  usage(in.video.empty() || (in.images.empty() && in.transforms.empty() && !npy),
+        "--video is an input on its own (its frames are extracted; not with --images, --transforms or --npy-*)");
+  usage(in.transforms.empty() || !npy, "give --transforms or --npy-extrinsics/--npy-intrinsics, not both");
+  usage(!npy || (!in.npy_ext.empty() && !in.npy_int.empty()), "--npy-extrinsics and --npy-intrinsics go together");
+  usage(!npy || !in.images.empty(), "--npy-extrinsics/--npy-intrinsics need --images DIR (camera i is the i-th image)");
+  usage(in.npy_size.empty() || npy, "--npy-size goes with --npy-extrinsics/--npy-intrinsics");
+  usage(in.fps == 0 || !in.video.empty(), "--fps goes with --video");
+  usage(!in.camera_model_set || in.estimate_cameras(), "--camera-model goes with --video or --images alone (COLMAP)");
+  usage(in.camera_model == "SIMPLE_PINHOLE" || in.camera_model == "PINHOLE",
+        "--camera-model must be SIMPLE_PINHOLE or PINHOLE, got '" + in.camera_model + "'");
+  usage(!frames_set || in.recorded(), "--frames needs a recorded input (--video, --images, --colmap, ...)");
+  const std::string& c = flags.params.completion;
+  usage(!completion_set || !in.estimate_cameras() || (c != "oracle" && c != "perturbed"),
+        "--completion " + c + " needs recorded cameras for the gap frames, and with " +
+            (in.video.empty() ? "--images" : "--video") +
+            " only the source frames get cameras (COLMAP sees nothing else); use --completion external (the "
+            "default for this input) or none");
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string colmap, out;
+  std::string out;
+  Inputs in;
   cli::PipelineFlags flags;
-  bool frames_set = false;
+  bool frames_set = false, completion_set = false;
   try {
     cli::begin_pipeline_flags("full_pipeline", argc, argv, flags);
     cli::ArgWalker a("full_pipeline", argc, argv);
     while (a.next()) {
       const std::string f = a.flag();
       if (f == "--frames") frames_set = true;
+      if (f == "--completion") completion_set = true;
       if (cli::parse_pipeline_flag("full_pipeline", a, flags)) continue;
-      if (f == "--colmap") colmap = a.value();
+      if (f == "--colmap") in.colmap = a.value();
+      else if (f == "--video") in.video = a.value();
+      else if (f == "--images") in.images = a.value();
+      else if (f == "--transforms") in.transforms = a.value();
+      else if (f == "--npy-extrinsics") in.npy_ext = a.value();
+      else if (f == "--npy-intrinsics") in.npy_int = a.value();
+      else if (f == "--npy-size") in.npy_size = a.value();
+      else if (f == "--fps") {
+        in.fps = cli::parse_double("full_pipeline", f, a.value());
+        if (in.fps <= 0) throw cli::UsageError("full_pipeline: --fps must be positive");
+      } else if (f == "--camera-model") {
+        in.camera_model = a.value();
+        in.camera_model_set = true;
+      }
       else if (f == "--prompt") flags.params.prompt = a.value();
       else if (f == "--out") out = a.value();
       else if (f == "-h" || f == "--help") {
@@ -53,7 +130,10 @@ int main(int argc, char** argv) {
         a.unknown();
     }
     cli::end_pipeline_flags(flags);
-    if (colmap.empty() && frames_set) throw cli::UsageError("full_pipeline: --frames needs --colmap");
+    check_inputs(in, flags, frames_set, completion_set);
+    // Gap frames of an estimated input have no cameras: only an external completion (or none) fits.
+    if (in.estimate_cameras() && !completion_set) flags.params.completion = "external";
+    if (in.recorded() && out.empty()) throw cli::UsageError("full_pipeline: --out DIR is required with a recorded input");
   } catch (const cli::UsageError& e) {
     std::cerr << e.what() << "\n" << kUsage;
     return 2;
@@ -63,9 +143,28 @@ int main(int argc, char** argv) {
   }
 
   PipelineParams& p = flags.params;
+  CameraStageParams cp;
+  if (in.estimate_cameras()) {
+    cp.video = in.video;
+    cp.images = in.images;
+    cp.frames = flags.frames;
+    cp.fps = in.fps;
+    cp.camera_model = in.camera_model;
+    cp.threads = p.threads;
+    // Before any work: the programs the cameras stage runs.
+    for (const auto& [program, package] : camera_stage_programs(cp))
+      if (find_program(program).empty()) {
+        std::cerr << missing_program_message("full_pipeline", in.video.empty() ? "--images" : "--video", program,
+                                             package)
+                  << "\n";
+        return 1;
+      }
+  }
   try {
     PipelineInput<S> input;
-    if (colmap.empty()) {
+    PipelineRun<S> run;
+    const auto size = cli::working_size(flags);
+    if (!in.recorded()) {
       // The embedded default: small enough to finish in a few minutes on 2 cores.
       SyntheticInputParams sp;
       sp.width = flags.width > 0 ? flags.width : 96;
@@ -84,13 +183,45 @@ int main(int argc, char** argv) {
       const BackgroundEstimate bg = choose_background(input, flags.background ? &*flags.background : nullptr);
       std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
                    bg.reason.c_str());
+    } else if (in.estimate_cameras()) {
+      if (p.progress) std::fprintf(stderr, "== stage cameras\n");
+      cp.log = [&](const std::string& line) {
+        if (p.progress) std::fprintf(stderr, "%s\n", line.c_str());
+      };
+      const CameraStageResult cr = stage_cameras(out, cp);
+      if (cr.skipped && p.progress) std::fprintf(stderr, "   cameras: outputs verified, skipped\n");
+      run.keys["cameras"] = cr.key;  // the report counts its time
+      auto wh = size;
+      const bool native = wh[0] == 0 && wh[1] == 0;  // the paper protocol: the frames' own size
+      if (!native && flags.width == 0 && flags.height == 0) {
+        // No size given: 512 on the longer side, keeping the frames' aspect (a video is rarely square).
+        const auto model = read_colmap_model(cr.dataset);
+        const auto& cam = model.cameras.begin()->second;
+        const double aspect = double(cam.width) / double(cam.height);
+        wh = aspect >= 1 ? std::array<int, 2>{512, std::max(8, int(std::lround(512 / aspect)))}
+                         : std::array<int, 2>{std::max(8, int(std::lround(512 * aspect))), 512};
+      }
+      input = load_colmap_input<S>(cr.dataset, flags.frames, wh[0], wh[1]);
+      input.description = (in.video.empty() ? "images " + in.images : "video " + in.video) + " frames " +
+                          flags.frames + " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) +
+                          " of " + std::to_string(cr.source_names.size()) + " source frames)";
+      cli::finish_recorded_input("full_pipeline", input, flags);
+    } else if (!in.colmap.empty()) {
+      input = cli::load_recorded_input<S>("full_pipeline", in.colmap, flags);
     } else {
-      if (out.empty()) throw cli::UsageError("full_pipeline: --out DIR is required with --colmap");
-      input = cli::load_recorded_input<S>("full_pipeline", colmap, flags);
+      if (!in.transforms.empty()) {
+        input = load_transforms_input<S>(in.transforms, in.images, flags.frames, size[0], size[1]);
+      } else {
+        int nw = 0, nh = 0;
+        if (!in.npy_size.empty() && (std::sscanf(in.npy_size.c_str(), "%dx%d", &nw, &nh) != 2 || nw <= 0 || nh <= 0))
+          throw cli::UsageError("full_pipeline: --npy-size expects WxH, got '" + in.npy_size + "'");
+        input = load_npy_input<S>(in.npy_ext, in.npy_int, in.images, nw, nh, flags.frames, size[0], size[1]);
+      }
+      cli::finish_recorded_input("full_pipeline", input, flags);
     }
     std::fprintf(stderr, "full_pipeline: %s -> %s (protocol %s, completion %s)\n", input.description.c_str(),
                  out.c_str(), protocol_name(flags.protocol), p.completion.c_str());
-    const nlohmann::json r = run_pipeline(input, p, out);
+    const nlohmann::json r = run_pipeline(input, p, out, nullptr, &run);
     std::cout << report_markdown(r);
     std::fprintf(stderr, "full_pipeline: done; report in %s/report.md, scene in %s/final.ply\n", out.c_str(),
                  out.c_str());

@@ -127,18 +127,25 @@ inline std::array<int, 2> working_size(const PipelineFlags& f) {
   return {512, 512};
 }
 
-// A COLMAP folder as every pipeline program loads it.
+// Withheld frames and background of a loaded recorded input, as every pipeline
+// program sets them.
 template <class Scalar>
-PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
-                                          const PipelineFlags& f) {
-  const auto size = working_size(f);
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size[0], size[1]);
+void finish_recorded_input(const std::string& program, PipelineInput<Scalar>& input, const PipelineFlags& f) {
   withhold_every(input, f.holdout_every);
   const BackgroundEstimate bg = choose_background(input, f.background ? &*f.background : nullptr);
   if (f.params.progress)
     std::fprintf(stderr, "%s: %s, %dx%d, background %.3f,%.3f,%.3f: %s\n", program.c_str(),
                  input.description.c_str(), input.width, input.height, bg.color[0], bg.color[1], bg.color[2],
                  bg.reason.c_str());
+}
+
+// A COLMAP folder as every pipeline program loads it.
+template <class Scalar>
+PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
+                                          const PipelineFlags& f) {
+  const auto size = working_size(f);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size[0], size[1]);
+  finish_recorded_input(program, input, f);
   return input;
 }
 

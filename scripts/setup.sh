@@ -3,7 +3,8 @@
 set -euo pipefail
 packages=(build-essential cmake ninja-build ccache pkg-config
   libeigen3-dev libxsimd-dev libstb-dev nlohmann-json3-dev
-  catch2 libbenchmark-dev python3-matplotlib clang libclang-rt-14-dev)
+  catch2 libbenchmark-dev python3-matplotlib clang libclang-rt-14-dev
+  ffmpeg colmap)  # full_pipeline --video / --images and their tests run these two programs
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -131,6 +131,11 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
     stages[s] = secs;
     total += secs;
   }
+  // The camera estimation of a video or image-folder input (stages/cameras.hpp), when the caller ran it.
+  if (run.keys.count("cameras")) {
+    stages["cameras"] = recorded_seconds(run.out, "cameras");
+    total += stages["cameras"].get<double>();
+  }
   // Comparisons an audit asked for are not part of the method's time.
   nlohmann::json comparisons = nlohmann::json::object();
   for (const char* s : {"g1_paper", "bound"})
