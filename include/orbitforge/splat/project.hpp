@@ -4,24 +4,8 @@
 // (project_scene_vjp: ProjectedSplatsGrad -> GaussianSceneGrad).
 //
 // ---------------------------------------------------------------------------
-// Scene adaptor contract (nanoflann style). The renderer reads a scene only
-// through a const reference to an object of a type `Scene` providing:
-//
-//   using scalar_type = S;                              // float or double
-//   static constexpr ScaleMode scale_mode;              // ScaleMode::log: scale() returns
-//                                                       //   log standard deviations;
-//                                                       // ScaleMode::activated: standard
-//                                                       //   deviations of any sign (the
-//                                                       //   covariance uses s^2)
-//   std::size_t size() const;                           // number of Gaussians
-//   int sh_degree() const;                              // 0..3
-//   void mean(std::size_t i, S out[3]) const;           // world position
-//   void rotation(std::size_t i, S out[4]) const;       // quaternion (w, x, y, z), any
-//                                                       //   non-zero norm (normalised here)
-//   void scale(std::size_t i, S out[3]) const;          // see scale_mode
-//   S opacity_logit(std::size_t i) const;               // opacity = sigmoid(logit)
-//   S sh(std::size_t i, int k, int c) const;            // coefficient k < (deg+1)^2, channel c
-//
+// Scenes are read through an adaptor (the contract, with its compile-time
+// check: splat/scene_adaptor.hpp).
 // SceneView<S> adapts a GaussianScene<S>; DeformedSceneView<S> renders the
 // deformable state x + dx, normalize(q) + dq, exp(log s) + ds of a base scene
 // without copying it. A host renderer writes its own adaptor over its storage.
@@ -62,12 +46,11 @@
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/splat/gaussians.hpp"
 #include "orbitforge/splat/projected.hpp"
+#include "orbitforge/splat/scene_adaptor.hpp"
 #include "orbitforge/splat/scene_grad.hpp"
 #include "orbitforge/splat/sh.hpp"
 
 namespace orbitforge {
-
-enum class ScaleMode { log, activated };
 
 struct ProjectionParams {
   double near_plane = 0.01;     // cull when camera-space z <= near_plane
@@ -624,6 +607,7 @@ template <class Scene>
 void project_scene(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
                    const ProjectionParams& params, ProjectedSplats<typename Scene::scalar_type>& out,
                    ProjectionStats* stats = nullptr, int threads = 0) {
+  static_assert(check_scene_adaptor<Scene>(), "project_scene: Scene is not a scene adaptor");
   using Scalar = typename Scene::scalar_type;
   const auto cam = ProjectionCamera<Scalar>::make(camera, params);
   const int degree = scene.sh_degree();
@@ -683,6 +667,7 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
                        const ProjectedSplatsGrad<typename Scene::scalar_type>& v_in,
                        GaussianSceneGrad<typename Scene::scalar_type>& out, const Freeze& freeze = {},
                        int threads = 0) {
+  static_assert(check_scene_adaptor<Scene>(), "project_scene_vjp: Scene is not a scene adaptor");
   using Scalar = typename Scene::scalar_type;
   const auto cam = ProjectionCamera<Scalar>::make(camera, params);
   const int degree = scene.sh_degree();

@@ -62,6 +62,7 @@ class Renderer {
 
   template <class Scene>
   const RenderOutput<Scalar>& render(const Scene& scene, const Camera<Scalar>& camera) {
+    static_assert(check_scene_adaptor<Scene>(), "Renderer::render: Scene is not a scene adaptor");
     static_assert(std::is_same<typename Scene::scalar_type, Scalar>::value, "Renderer: scene of the wrong precision");
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
@@ -99,6 +100,7 @@ class Renderer {
                                             const detail::identity_t<Image<Scalar>>* v_alpha = nullptr,
                                             const detail::identity_t<Image<Scalar>>* v_depth = nullptr,
                                             const Freeze& freeze = {}) {
+    static_assert(check_scene_adaptor<Scene>(), "Renderer::backward: Scene is not a scene adaptor");
     ensure(rendered_, "Renderer::backward: call render() first");
     ensure(scene.size() == scene_size_, "Renderer::backward: scene has ", scene.size(),
            " Gaussians, the last render had ", scene_size_);
