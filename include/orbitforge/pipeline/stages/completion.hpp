@@ -144,30 +144,21 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
     }
   }
 
+  // V_hat: R0's renders (on the supported arc, or everywhere when R0 is reused)
+  // and the completion's frames.
   std::vector<VhatFrame<Scalar>> vhat;
-  if (!res.reuse_r0) {
-    for (int v : rendered_views(run.fit.views, p.render_stride)) {
-      if (!run.fit.support.in_arc(v)) continue;
-      VhatFrame<Scalar> f;
-      f.image = ctx.r0(v);
-      f.camera = run.fit.cameras[std::size_t(v)];
-      f.position = v;
-      f.origin = "R0 view " + std::to_string(v);
-      f.from_r0 = true;
-      vhat.push_back(std::move(f));
-    }
-    for (auto& f : res.frames) vhat.push_back(std::move(f));
-  } else {
-    for (int v : rendered_views(run.fit.views, p.render_stride)) {
-      VhatFrame<Scalar> f;
-      f.image = ctx.r0(v);
-      f.camera = run.fit.cameras[std::size_t(v)];
-      f.position = v;
-      f.origin = "R0 view " + std::to_string(v);
-      f.from_r0 = true;
-      vhat.push_back(std::move(f));
-    }
+  for (int v : rendered_views(run.fit.views, p.render_stride)) {
+    if (!res.reuse_r0 && !run.fit.support.in_arc(v)) continue;
+    VhatFrame<Scalar> f;
+    f.image = ctx.r0(v);
+    f.camera = run.fit.cameras[std::size_t(v)];
+    f.position = v;
+    f.origin = "R0 view " + std::to_string(v);
+    f.from_r0 = true;
+    vhat.push_back(std::move(f));
   }
+  if (!res.reuse_r0)
+    for (auto& f : res.frames) vhat.push_back(std::move(f));
   std::stable_sort(vhat.begin(), vhat.end(),
                    [](const VhatFrame<Scalar>& a, const VhatFrame<Scalar>& b) { return a.position < b.position; });
   ensure(!vhat.empty(), "pipeline: V_hat is empty (no rendered R0 view in the arc and no completion frame)");
