@@ -8,7 +8,10 @@
 #include <functional>
 #include <iostream>
 #include <stdexcept>
+#include <new>
 #include <string>
+
+#include "orbitforge/core/limits.hpp"
 
 namespace orbitforge::cli {
 
@@ -43,6 +46,16 @@ inline double parse_double(const std::string& program, const std::string& flag, 
   if (text.empty() || used != text.size() || !std::isfinite(x))
     throw UsageError(program + ": " + flag + " expects a number, got '" + text + "'");
   return x;
+}
+
+// --threads N: 0 (all hardware threads) up to orbitforge::Limits::max_threads.
+inline int parse_threads(const std::string& program, const std::string& flag, const std::string& text) {
+  const long n = parse_int(program, flag, text, 0);
+  const int max = limits().max_threads;
+  if (n > max)
+    throw UsageError(program + ": " + flag + " " + text + " is over the thread limit of " + std::to_string(max) +
+                     " (orbitforge::Limits::max_threads; the environment variable ORBITFORGE_MAX_THREADS raises it)");
+  return int(n);
 }
 
 // "r,g,b" with each value in [0, 1].

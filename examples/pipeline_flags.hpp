@@ -90,7 +90,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   } else if (flag == "--views") p.orbit.views = integer(9);
   else if (flag == "--render-stride") p.render_stride = integer(1);
   else if (flag == "--median-samples") p.median_samples = integer(2);
-  else if (flag == "--threads") p.threads = integer(0);
+  else if (flag == "--threads") p.threads = parse_threads(program, flag, a.value());
   else if (flag == "--seed") p.seed = unsigned(integer(0));
   else if (flag == "--static") p.deformable = false;
   else if (flag == "--background") f.background = parse_rgb(program, flag, a.value());

@@ -48,7 +48,7 @@ int main(int argc, char** argv) {
       else if (f == "--every") every = int(cli::parse_int("render_orbit", f, w.value(), 1));
       else if (f == "--out") out = w.value();
       else if (f == "--format") format = w.value();
-      else if (f == "--threads") threads = int(cli::parse_int("render_orbit", f, w.value(), 0));
+      else if (f == "--threads") threads = cli::parse_threads("render_orbit", f, w.value());
       else if (f == "--stats") stats = true;
       else if (f == "--background") {
         const auto c = cli::parse_rgb("render_orbit", f, w.value());

@@ -168,6 +168,7 @@ class Trainer {
       : frames_(frames), params_(params), schedule_(TrainSchedule::make(params)), scene_(std::move(initial)),
         adam_(params.adam), field_adam_(params.adam), rng_(params.seed) {
     ensure(!frames_.empty(), "Trainer: no frames");
+    resolve_threads(params.threads, "TrainParams::threads");  // over the limit: refused before anything is built
     ensure(params.max_sh_degree >= 0 && params.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ",
            params.max_sh_degree);
     ensure(params.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
