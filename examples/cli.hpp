@@ -92,6 +92,16 @@ class ArgWalker {
   char** argv_;
 };
 
+// The message of an exception that reaches a program's top level. The library
+// turns the allocations it can describe into orbitforge::OutOfMemory ("out of
+// memory while rendering a 30000x30000 frame ... (about 28.5 GiB requested)"); a
+// bare std::bad_alloc from anywhere else still says what it means.
+inline std::string describe(const std::exception& e) {
+  if (dynamic_cast<const std::bad_alloc*>(&e))
+    return std::string("out of memory (") + e.what() + " from an allocation the library does not describe)";
+  return e.what();
+}
+
 // Runs a program body with the exit-code convention above.
 inline int run(const std::function<int()>& body) {
   try {
@@ -100,7 +110,7 @@ inline int run(const std::function<int()>& body) {
     std::cerr << e.what() << "\n";
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << e.what() << "\n";
+    std::cerr << describe(e) << "\n";
     return 1;
   }
 }

@@ -315,7 +315,7 @@ int main(int argc, char** argv) {
     std::cerr << e.what() << "\n" << kUsage;
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << "reconstruct: " << e.what() << "\n";
+    std::cerr << "reconstruct: " << cli::describe(e) << "\n";
     return 1;
   }
 }

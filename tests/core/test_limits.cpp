@@ -162,3 +162,16 @@ TEST_CASE("ThreadPool: a thread that cannot start gives an Error, not a hang", "
   CHECK(sum.load() == 4950);
 #endif
 }
+
+TEST_CASE("with_memory_context turns std::bad_alloc into OutOfMemory naming the request", "[core][limits]") {
+  try {
+    with_memory_context([]() -> int { throw std::bad_alloc(); }, std::uint64_t(3) << 30, "reading ", "x.bin");
+    FAIL("no exception");
+  } catch (const OutOfMemory& e) {
+    CHECK(std::string(e.what()) == "out of memory while reading x.bin (about 3.0 GiB requested)");
+    CHECK(e.bytes() == (std::uint64_t(3) << 30));
+  }
+  // Other errors and results pass through unchanged.
+  CHECK(with_memory_context([] { return 7; }, 1, "nothing") == 7);
+  CHECK_THROWS_WITH(with_memory_context([]() -> int { fail("bad input"); }, 1, "x"), "bad input");
+}

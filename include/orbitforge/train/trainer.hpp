@@ -43,6 +43,7 @@
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
+#include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/deform/deformation_field.hpp"
 #include "orbitforge/io/atomic_file.hpp"
@@ -241,8 +242,20 @@ class Trainer {
     }
   }
 
-  // One iteration; returns its report.
+  // One iteration; returns its report. A std::bad_alloc inside becomes OutOfMemory
+  // naming the iteration and the model's size (the trainer is then unusable).
   const TrainProgress& step() {
+    const std::size_t n = scene_.size();
+    const std::uint64_t per_gaussian = std::uint64_t(11 + 3 * sh_coefficient_count(params_.max_sh_degree));
+    return with_memory_context([this]() -> const TrainProgress& { return step_unchecked(); },
+                               // parameters, gradients and two optimizer moments
+                               std::uint64_t(n) * per_gaussian * sizeof(Scalar) * 4, "training iteration ",
+                               iteration_ + 1, " of ", params_.iterations, " (", n,
+                               " Gaussians; their parameters, gradients and optimizer moments)");
+  }
+
+ private:
+  const TrainProgress& step_unchecked() {
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
     ensure(iteration_ < params_.iterations, "Trainer::step: the budget of ", params_.iterations,
@@ -338,6 +351,7 @@ class Trainer {
     return last_;
   }
 
+ public:
   // Renders the current model for a camera at time code t (deformed when the
   // deformation is active at the current iteration). The image is the renderer's
   // buffer: valid until the next render or training step.
