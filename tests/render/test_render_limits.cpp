@@ -185,3 +185,32 @@ TEST_CASE("an allocation failure while rendering says what was being allocated",
   CHECK(has(message, "out of memory while rendering a 6000x6000 frame of 20 Gaussians (about 1.1 GiB requested)"));
 #endif
 }
+
+TEST_CASE("non-finite Gaussians: every one skipped is an error, more than 1 % a warning", "[render][nonfinite]") {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  RenderParams<float> p;
+  p.threads = 1;
+  Renderer<float> r(p);
+  const auto cam = limits_camera(32, 24);
+  auto scene = limits_scene(200, -2.5f);
+  SECTION("all non-finite") {
+    for (std::size_t i = 0; i < scene.size(); ++i) scene.opacity_logits[i] = nan;
+    const std::string e = render_error(r, scene, cam);
+    INFO(e);
+    CHECK(has(e, "all 200 Gaussians of the scene were skipped as non-finite"));
+  }
+  SECTION("2 % non-finite warns, 0.5 % does not") {
+    scene.means[0] = nan;
+    const auto& quiet = r.render(SceneView<float>(scene), cam);
+    CHECK(quiet.frame.projection.culled_nonfinite == 1);
+    CHECK(nonfinite_warning(quiet.frame).empty());
+    scene.log_scales[3 * 7] = std::numeric_limits<float>::infinity();
+    scene.rotations[4 * 9] = nan;
+    scene.sh[3 * 11] = nan;
+    const auto& out = r.render(SceneView<float>(scene), cam);
+    CHECK(out.frame.projection.culled_nonfinite == 4);
+    const std::string w = nonfinite_warning(out.frame);
+    INFO(w);
+    CHECK(has(w, "4 of 200 Gaussians (2 %) were skipped as non-finite"));
+  }
+}

@@ -49,6 +49,23 @@ struct RenderStats {
   ProjectionStats projection;
 };
 
+// Share of a scene's Gaussians skipped as non-finite above which programs warn
+// (nonfinite_warning); a render that skips every one is an error.
+inline constexpr double kNonfiniteWarnShare = 0.01;
+
+// A warning line when more than kNonfiniteWarnShare of the Gaussians a render saw
+// were skipped as non-finite; empty otherwise.
+inline std::string nonfinite_warning(const RenderStats& s) {
+  const std::size_t n = s.projection.total(), bad = s.projection.culled_nonfinite;
+  if (n == 0 || !(double(bad) > kNonfiniteWarnShare * double(n))) return {};
+  std::ostringstream os;
+  os.precision(3);
+  os << bad << " of " << n << " Gaussians (" << 100.0 * double(bad) / double(n)
+     << " %) were skipped as non-finite (NaN or infinite parameters, a zero quaternion or a degenerate "
+        "covariance); the image lacks them";
+  return os.str();
+}
+
 // Bytes per pixel of a frame: the renderer's outputs (colour x3, transmittance and
 // depth in Scalar; blend count and backward replay length in int32), plus 6 for
 // the 8-bit copy and encoder of a caller writing a PNG. 34 for float: as measured
@@ -119,6 +136,11 @@ class Renderer {
         [&] {
           project_scene(scene, camera, pp, splats_, &out_.frame.projection, threads);
           t1 = clock::now();
+          // A blank image with no complaint would hide a diverged or damaged scene.
+          ensure(scene.size() == 0 || out_.frame.projection.culled_nonfinite < scene.size(),
+                 "Renderer::render: all ", scene.size(),
+                 " Gaussians of the scene were skipped as non-finite (NaN or infinite parameters, a zero "
+                 "quaternion or a degenerate covariance); nothing to render");
           bin_splats(splats_, width, height, params_.tile_size, bins_, threads);
           rasterize(bins_, raster_params(threads), static_cast<RasterOutput<Scalar>&>(out_), ws_);
         },
