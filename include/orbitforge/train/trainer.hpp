@@ -26,7 +26,9 @@
 // Checkpoints (save_checkpoint / load_checkpoint) hold the iteration, scene, optimizer
 // moments and steps, RNG and frame-order state, densification statistics and the
 // field with its optimizer; resuming with the same frames, params and thread count
-// continues exactly as an uninterrupted run. Written atomically (temp + rename).
+// continues exactly as an uninterrupted run. Written atomically (temp + rename);
+// checkpoint files end in a checksum (binary_io::append_checksum) and a damaged
+// or truncated one is refused whole.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -399,10 +401,13 @@ class Trainer {
     ensure(bool(os), "Trainer::save_checkpoint: write failed");
   }
 
+  // The file form: the stream form plus a checksum trailer.
   void save_checkpoint(const std::string& path) const {
     std::ostringstream os(std::ios::binary);
     save_checkpoint(os);
-    write_file_atomic(path, os.str());
+    std::string bytes = os.str();
+    binary_io::append_checksum(bytes);
+    write_file_atomic(path, bytes);
   }
 
   // Replaces the training state with the checkpoint's. The trainer must have been
@@ -481,9 +486,11 @@ class Trainer {
     }
   }
 
+  // Refuses a file whose checksum does not match before reading any of it.
   void load_checkpoint(const std::string& path) {
-    std::istringstream is(read_file_bytes(path), std::ios::binary);
+    const std::string bytes = read_file_bytes(path);
     try {
+      std::istringstream is(binary_io::checked_payload(bytes), std::ios::binary);
       load_checkpoint(is);
     } catch (const Error& e) {
       fail(path, ": ", e.what());
