@@ -28,7 +28,8 @@ inline const char* kPipelineFlagsUsage =
     "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b\n"
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
     "  --g1-source-repeats N --g1-completion-repeats N\n"
-    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n";
+    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
+    "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n";
 
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
@@ -110,6 +111,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--oracle-bound") p.oracle_bound = true;
   else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
   else if (flag == "--quiet") p.progress = false;
+  else if (flag == "--checkpoint-every") p.checkpoint_every = integer(0);
   else return false;
   return true;
 }
