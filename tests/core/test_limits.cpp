@@ -16,6 +16,17 @@
 #include <sys/resource.h>
 #endif
 
+// Tests that cap RLIMIT_AS cannot run beside a sanitizer's shadow memory.
+#ifndef ORBITFORGE_TEST_SANITIZED
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define ORBITFORGE_TEST_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define ORBITFORGE_TEST_SANITIZED 1
+#endif
+#endif
+#endif
+
 using namespace orbitforge;
 
 namespace {
@@ -119,7 +130,7 @@ TEST_CASE("thread counts over Limits::max_threads are refused with the limit nam
 // started workers kept waiting on a condition variable being destroyed and the
 // program hung without a message.
 TEST_CASE("ThreadPool: a thread that cannot start gives an Error, not a hang", "[core][limits][parallel]") {
-#if !defined(__linux__) || defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if !defined(__linux__) || defined(ORBITFORGE_TEST_SANITIZED)
   SUCCEED("needs Linux RLIMIT_AS without a sanitizer's shadow memory");
 #else
   const std::uint64_t mapped = mapped_bytes();

@@ -14,6 +14,17 @@
 #include <sys/resource.h>
 #endif
 
+// Tests that cap RLIMIT_AS cannot run beside a sanitizer's shadow memory.
+#ifndef ORBITFORGE_TEST_SANITIZED
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define ORBITFORGE_TEST_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define ORBITFORGE_TEST_SANITIZED 1
+#endif
+#endif
+#endif
+
 using namespace orbitforge;
 
 namespace {
@@ -141,7 +152,7 @@ TEST_CASE("Image refuses sizes over the pixel limit", "[render][limits]") {
 // (here: address space capped with RLIMIT_AS) ends in OutOfMemory naming the frame
 // and the estimate, not a bare std::bad_alloc.
 TEST_CASE("an allocation failure while rendering says what was being allocated", "[render][limits]") {
-#if !defined(__linux__) || defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if !defined(__linux__) || defined(ORBITFORGE_TEST_SANITIZED)
   SUCCEED("needs Linux RLIMIT_AS without a sanitizer's shadow memory");
 #else
   std::uint64_t mapped = 0;

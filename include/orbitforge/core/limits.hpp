@@ -43,7 +43,7 @@ namespace orbitforge {
 struct Limits {
   int max_threads = 256;
   std::uint64_t max_image_pixels = std::uint64_t(1) << 28;
-  std::uint64_t max_memory_bytes = std::uint64_t(8) << 30;  // replaced by default_memory_limit() in defaults()
+  std::uint64_t max_memory_bytes = std::uint64_t(8) << 30;  // defaults(): half the memory, when it can be read
 
   static Limits defaults();
   // defaults() with the ORBITFORGE_MAX_* environment variables applied.
