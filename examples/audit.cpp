@@ -122,7 +122,7 @@ int main(int argc, char** argv) {
           failed.error = e.what();
           failed.status = "stopped";
         } catch (const std::exception& e) {
-          failed.error = e.what();
+          failed.error = cli::describe(e);
         }
         const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         if (!failed.error.empty()) {

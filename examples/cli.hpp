@@ -8,7 +8,10 @@
 #include <functional>
 #include <iostream>
 #include <stdexcept>
+#include <new>
 #include <string>
+
+#include "orbitforge/core/limits.hpp"
 
 namespace orbitforge::cli {
 
@@ -45,6 +48,16 @@ inline double parse_double(const std::string& program, const std::string& flag, 
   return x;
 }
 
+// --threads N: 0 (all hardware threads) up to orbitforge::Limits::max_threads.
+inline int parse_threads(const std::string& program, const std::string& flag, const std::string& text) {
+  const long n = parse_int(program, flag, text, 0);
+  const int max = limits().max_threads;
+  if (n > max)
+    throw UsageError(program + ": " + flag + " " + text + " is over the thread limit of " + std::to_string(max) +
+                     " (orbitforge::Limits::max_threads; the environment variable ORBITFORGE_MAX_THREADS raises it)");
+  return int(n);
+}
+
 // "r,g,b" with each value in [0, 1].
 inline std::array<double, 3> parse_rgb(const std::string& program, const std::string& flag, const std::string& text) {
   std::array<double, 3> c{};
@@ -79,6 +92,16 @@ class ArgWalker {
   char** argv_;
 };
 
+// The message of an exception that reaches a program's top level. The library
+// turns the allocations it can describe into orbitforge::OutOfMemory ("out of
+// memory while rendering a 30000x30000 frame ... (about 28.5 GiB requested)"); a
+// bare std::bad_alloc from anywhere else still says what it means.
+inline std::string describe(const std::exception& e) {
+  if (dynamic_cast<const std::bad_alloc*>(&e))
+    return std::string("out of memory (") + e.what() + " from an allocation the library does not describe)";
+  return e.what();
+}
+
 // Runs a program body with the exit-code convention above.
 inline int run(const std::function<int()>& body) {
   try {
@@ -87,7 +110,7 @@ inline int run(const std::function<int()>& body) {
     std::cerr << e.what() << "\n";
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << e.what() << "\n";
+    std::cerr << describe(e) << "\n";
     return 1;
   }
 }

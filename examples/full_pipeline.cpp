@@ -233,7 +233,7 @@ int main(int argc, char** argv) {
     std::cerr << "full_pipeline: stopped: " << e.what() << "\n";
     return 3;
   } catch (const std::exception& e) {
-    std::cerr << "full_pipeline: error: " << e.what() << "\n";
+    std::cerr << "full_pipeline: error: " << cli::describe(e) << "\n";
     return 1;
   }
 }

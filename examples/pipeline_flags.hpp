@@ -28,7 +28,8 @@ inline const char* kPipelineFlagsUsage =
     "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b\n"
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
     "  --g1-source-repeats N --g1-completion-repeats N\n"
-    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n";
+    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
+    "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n";
 
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
@@ -90,7 +91,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   } else if (flag == "--views") p.orbit.views = integer(9);
   else if (flag == "--render-stride") p.render_stride = integer(1);
   else if (flag == "--median-samples") p.median_samples = integer(2);
-  else if (flag == "--threads") p.threads = integer(0);
+  else if (flag == "--threads") p.threads = parse_threads(program, flag, a.value());
   else if (flag == "--seed") p.seed = unsigned(integer(0));
   else if (flag == "--static") p.deformable = false;
   else if (flag == "--background") f.background = parse_rgb(program, flag, a.value());
@@ -110,6 +111,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--oracle-bound") p.oracle_bound = true;
   else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
   else if (flag == "--quiet") p.progress = false;
+  else if (flag == "--checkpoint-every") p.checkpoint_every = integer(0);
   else return false;
   return true;
 }

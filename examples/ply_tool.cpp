@@ -20,6 +20,7 @@
 
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/splat_format.hpp"
+#include "cli.hpp"
 
 using namespace orbitforge;
 
@@ -141,7 +142,7 @@ int main(int argc, char** argv) {
       return random_scene(std::stoull(argv[2]), std::stoi(argv[3]), unsigned(std::stoul(argv[4])), argv[5]);
     return usage();
   } catch (const std::exception& e) {
-    std::cerr << "ply_tool: " << e.what() << "\n";
+    std::cerr << "ply_tool: " << cli::describe(e) << "\n";
     return 1;
   }
 }

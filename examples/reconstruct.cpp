@@ -115,7 +115,7 @@ Args parse(int argc, char** argv) {
     else if (f == "--height") a.height = int(to_long(f, value(), 8));
     else if (f == "--iters") a.iters = int(to_long(f, value(), 1));
     else if (f == "--median-samples") a.median_samples = int(to_long(f, value(), 2));
-    else if (f == "--threads") a.threads = int(to_long(f, value(), 0));
+    else if (f == "--threads") a.threads = cli::parse_threads("reconstruct", f, value());
     else if (f == "--eval-every") a.eval_every = int(to_long(f, value(), 1));
     else if (f == "--seed") a.seed = unsigned(to_long(f, value(), 0));
     else if (f == "--min-densify-interval") a.min_densify_interval = int(to_long(f, value(), 1));
@@ -315,7 +315,7 @@ int main(int argc, char** argv) {
     std::cerr << e.what() << "\n" << kUsage;
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << "reconstruct: " << e.what() << "\n";
+    std::cerr << "reconstruct: " << cli::describe(e) << "\n";
     return 1;
   }
 }

@@ -48,7 +48,7 @@ int main(int argc, char** argv) {
       else if (f == "--every") every = int(cli::parse_int("render_orbit", f, w.value(), 1));
       else if (f == "--out") out = w.value();
       else if (f == "--format") format = w.value();
-      else if (f == "--threads") threads = int(cli::parse_int("render_orbit", f, w.value(), 0));
+      else if (f == "--threads") threads = cli::parse_threads("render_orbit", f, w.value());
       else if (f == "--stats") stats = true;
       else if (f == "--background") {
         const auto c = cli::parse_rgb("render_orbit", f, w.value());
@@ -70,8 +70,14 @@ int main(int argc, char** argv) {
     const auto cameras = read_cameras_json<float>(camera_file.empty() ? orbit_file : camera_file);
     std::filesystem::create_directories(out);
     Renderer<float> renderer(params);
+    bool warned = false;
     for (std::size_t i = 0; i < cameras.size(); i += std::size_t(every)) {
       const auto& frame = renderer.render(SceneView<float>(scene), cameras[i]);
+      if (!warned) {  // once: the same Gaussians are skipped at every camera
+        const std::string w = nonfinite_warning(frame.frame);
+        if (!w.empty()) std::cerr << "render_orbit: warning: " << ply << ": " << w << "\n";
+        warned = !w.empty();
+      }
       char name[32];
       std::snprintf(name, sizeof(name), "%05zu.%s", i, format.c_str());
       const std::string path = (std::filesystem::path(out) / name).string();

@@ -5,13 +5,15 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "orbitforge/io/ply.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string bytes(reinterpret_cast<const char*>(data), size);
   try {
-    const auto scene = orbitforge::read_ply_from_memory<float>(bytes, "fuzz.ply");
+    std::vector<std::string> warnings;  // trailing data: a warning, kept off stderr
+    const auto scene = orbitforge::read_ply_from_memory<float>(bytes, "fuzz.ply", &warnings);
     scene.check_consistent();
     // What was read must also write and read back to the same size.
     const auto again = orbitforge::read_ply_from_memory<float>(orbitforge::ply_bytes(scene), "again.ply");

@@ -532,3 +532,53 @@ TEST_CASE(".splat reader: extremes and malformed size", "[io][splat]") {
     REQUIRE(m.find("not a multiple of 32") != std::string::npos);
   }
 }
+
+TEST_CASE("PLY reader: data beyond the declared vertices is read as declared, with a warning", "[io][ply]") {
+  const auto scene = random_scene<float>(10, 1, 21);
+  const std::string full = ply_bytes(scene);
+  const std::size_t header = full.find("end_header\n") + std::string("end_header\n").size();
+  const std::size_t row = (full.size() - header) / 10;
+  // The same bytes with the header claiming 7 vertices ("10" -> " 7": same length).
+  std::string short_count = full;
+  const std::size_t at = short_count.find("element vertex 10\n");
+  REQUIRE(at != std::string::npos);
+  short_count.replace(at, 18, "element vertex  7\n");
+
+  std::vector<std::string> warnings;
+  const auto s = read_ply_from_memory<float>(short_count, "short.ply", &warnings);
+  REQUIRE(s.size() == 7);
+  REQUIRE(std::equal(s.means.begin(), s.means.end(), scene.means.begin()));
+  REQUIRE(warnings.size() == 1);
+  INFO(warnings[0]);
+  CHECK(warnings[0].find("short.ply: " + std::to_string(3 * row) + " bytes beyond the 7 vertices the header declares") ==
+        0);
+  CHECK(warnings[0].find("(3 more vertices of " + std::to_string(row) + " bytes)") != std::string::npos);
+
+  SECTION("without a list the warning goes to stderr") {
+    std::ostringstream captured;
+    auto* old = std::cerr.rdbuf(captured.rdbuf());
+    read_ply_from_memory<float>(short_count, "short.ply");
+    std::cerr.rdbuf(old);
+    CHECK(captured.str().find("warning: short.ply: " + std::to_string(3 * row) + " bytes beyond") !=
+          std::string::npos);
+  }
+  SECTION("an exact file warns of nothing") {
+    warnings.clear();
+    read_ply_from_memory<float>(full, "full.ply", &warnings);
+    CHECK(warnings.empty());
+  }
+  SECTION("ascii: values after the last vertex") {
+    const auto names = standard_names(0);
+    std::vector<TestProp> props;
+    for (const auto& n : names) props.push_back({n, "float"});
+    const auto small = random_scene<float>(3, 0, 4);
+    std::string text = make_ply(small, props, "ascii");
+    warnings.clear();
+    read_ply_from_memory<float>(text + "\n\n", "a.ply", &warnings);
+    CHECK(warnings.empty());  // trailing blank lines are not data
+    text += "1 2 3\n";
+    read_ply_from_memory<float>(text, "a.ply", &warnings);
+    REQUIRE(warnings.size() == 1);
+    CHECK(warnings[0].find("a.ply: 5 bytes of ascii data beyond the 3 vertices") == 0);
+  }
+}

@@ -342,6 +342,47 @@ TEST_CASE("pipeline: an interrupted run resumes from its partial checkpoint and 
   CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((ref / "final.ply").string()));
 }
 
+// A partial checkpoint with damaged bytes (0xFF over part of it: NaN parameters
+// that would parse) is refused by its checksum with a message, and G1 trains from
+// the start: the result is the uninterrupted one.
+TEST_CASE("pipeline: a damaged partial checkpoint is not resumed", "[pipeline][resume]") {
+  const fs::path& ref = oracle_run();
+  const fs::path dir = scratch().root / "damaged_partial";
+  copy_run(ref, dir);
+  fs::remove(dir / "stages" / "g1.json");
+  fs::remove(dir / "final.ply");
+  fs::remove_all(dir / "g1");
+  fs::remove_all(dir / "R1");
+  PipelineParams p = oracle_params();
+  p.checkpoint_every = kQuick ? 20 : 100;
+  const int stop_at = p.checkpoint_every + p.checkpoint_every / 2;
+  p.on_iteration = [stop_at](const std::string& label, int it) {
+    if (label == "G1" && it == stop_at) throw std::runtime_error("interrupted");
+  };
+  REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), p, dir.string()), "interrupted");
+  const fs::path partial = dir / "g1" / "partial.bin";
+  REQUIRE(fs::exists(partial));
+  std::string bytes = read_file_bytes(partial.string());
+  for (std::size_t i = bytes.size() / 2; i < bytes.size() / 2 + 256 && i < bytes.size(); ++i) bytes[i] = char(0xFF);
+  write_file_atomic(partial.string(), bytes);
+
+  int first = -1;
+  p.on_iteration = [&first](const std::string& label, int it) {
+    if (label == "G1" && first < 0) first = it;
+  };
+  PipelineRun<float> state;
+  std::vector<std::string> log;
+  state.log = [&log](const std::string& line) { log.push_back(line); };
+  run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
+  CHECK(first == 1);  // trained from the start, not from the damaged state
+  bool said = false;
+  for (const auto& line : log)
+    said = said || (line.find("partial.bin not usable") != std::string::npos &&
+                    line.find("checksum mismatch") != std::string::npos);
+  CHECK(said);
+  CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((ref / "final.ply").string()));
+}
+
 TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
   const fs::path dir = scratch().root / "none";
   copy_run(oracle_run(), dir);

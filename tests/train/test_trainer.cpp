@@ -5,9 +5,13 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <filesystem>
 #include <random>
 #include <sstream>
 
+#include <unistd.h>
+
+#include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/pipeline/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/init.hpp"
@@ -298,4 +302,57 @@ TEST_CASE("trainer rejects bad input", "[train][trainer]") {
   CHECK_THROWS_AS(Trainer<S>(frames, init, p), Error);
   frames[1].image = Image<S>(8, 8, 3);
   CHECK_THROWS_AS(Trainer<S>(frames, init, tiny_params(10)), Error);
+}
+
+// Checkpoint files carry a checksum: a file with damaged bytes (0xFF over part of
+// the scene reads as NaN parameters, which parse), zeros, a cut or extra bytes is
+// refused whole, and the trainer is left as it was.
+TEST_CASE("checkpoint files: damaged, truncated or extended files are refused by their checksum",
+          "[train][trainer][checkpoint]") {
+  using S = float;
+  const auto frames = tiny_frames<S>();
+  const auto init = tiny_init(frames);
+  Trainer<S> t(frames, init, tiny_params(60));
+  t.train(20);
+  const std::string path = (std::filesystem::temp_directory_path() /
+                            ("orbitforge_ckpt_" + std::to_string(::getpid()) + ".bin"))
+                               .string();
+  t.save_checkpoint(path);
+  const std::string good = read_file_bytes(path);
+  {
+    Trainer<S> r(frames, init, tiny_params(60));
+    r.load_checkpoint(path);
+    CHECK(r.iteration() == 20);
+    require_same_scene(r.scene(), t.scene());
+  }
+  struct Damage {
+    const char* name;
+    std::string bytes;
+    const char* expect;
+  };
+  std::string ff = good, zero = good;
+  for (std::size_t i = good.size() / 3; i < good.size() / 3 + 64; ++i) ff[i] = char(0xFF);
+  std::fill(zero.begin(), zero.end(), '\0');
+  const std::vector<Damage> cases = {
+      {"0xFF bytes", ff, "checksum mismatch"},
+      {"zeroed", zero, "no checksum trailer"},
+      {"cut to half", good.substr(0, good.size() / 2), "no checksum trailer"},
+      {"one byte more", good + "x", "no checksum trailer"},
+      {"payload cut, trailer kept", good.substr(0, 100) + good.substr(good.size() - 24), "records"},
+  };
+  for (const auto& d : cases) {
+    INFO(d.name);
+    write_file_atomic(path, d.bytes);
+    Trainer<S> r(frames, init, tiny_params(60));
+    try {
+      r.load_checkpoint(path);
+      FAIL("a damaged checkpoint was loaded");
+    } catch (const Error& e) {
+      INFO(e.what());
+      CHECK(std::string(e.what()).find(path + ": ") == 0);
+      CHECK(std::string(e.what()).find(d.expect) != std::string::npos);
+    }
+    CHECK(r.iteration() == 0);
+  }
+  std::filesystem::remove(path);
 }

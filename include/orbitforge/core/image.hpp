@@ -2,9 +2,11 @@
 // A plain interleaved image (row-major, channels fastest): pixel (x, y), channel c
 // lives at data[(y * width + x) * channels + c]. Row 0 is the top row.
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/limits.hpp"
 
 namespace orbitforge {
 
@@ -16,6 +18,7 @@ struct Image {
   Image() = default;
   Image(int w, int h, int c, T fill = T(0)) : width(w), height(h), channels(c) {
     ensure(w >= 0 && h >= 0 && c >= 0, "Image: negative size ", w, "x", h, "x", c);
+    check_image_size(std::uint64_t(w), std::uint64_t(h), "Image");
     data.assign(std::size_t(w) * std::size_t(h) * std::size_t(c), fill);
   }
   std::size_t pixel_count() const { return std::size_t(width) * std::size_t(height); }

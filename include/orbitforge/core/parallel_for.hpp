@@ -17,6 +17,8 @@
 #include <vector>
 
 #include "orbitforge/core/config.hpp"
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/limits.hpp"
 
 namespace orbitforge {
 
@@ -25,26 +27,39 @@ inline int hardware_threads() {
   return n == 0 ? 1 : int(n);
 }
 
-// 0 means "the default": ORBITFORGE_DEFAULT_THREADS if set, else all hardware threads.
-inline int resolve_threads(int requested) {
-  if (requested > 0) return requested;
-  if (ORBITFORGE_DEFAULT_THREADS > 0) return ORBITFORGE_DEFAULT_THREADS;
-  return hardware_threads();
+// 0 means "the default": ORBITFORGE_DEFAULT_THREADS if set, else all hardware
+// threads, either at most Limits::max_threads. An explicit count over that limit
+// is refused (Error naming `what` and the limit).
+inline int resolve_threads(int requested, const char* what = "thread count") {
+  if (requested > 0) {
+    check_thread_count(requested, what);
+    return requested;
+  }
+  const int max = limits().max_threads;
+  if (ORBITFORGE_DEFAULT_THREADS > 0) return std::min(int(ORBITFORGE_DEFAULT_THREADS), max);
+  return std::min(hardware_threads(), max);
 }
 
 class ThreadPool {
  public:
+  // Either every thread starts, or the ones started are stopped and joined and
+  // Error says which one failed (a throw with workers still running would leave
+  // them waiting on members being destroyed: a deadlock without a message).
   explicit ThreadPool(int threads) : threads_(std::max(1, threads)) {
-    for (int w = 1; w < threads_; ++w) workers_.emplace_back([this, w] { worker_loop(w); });
-  }
-  ~ThreadPool() {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      stop_.store(true);
+    check_thread_count(threads_, "ThreadPool");
+    workers_.reserve(std::size_t(threads_ - 1));
+    for (int w = 1; w < threads_; ++w) {
+      try {
+        workers_.emplace_back([this, w] { worker_loop(w); });
+      } catch (const std::exception& e) {
+        stop_and_join();
+        // Thread 1 is the caller's; worker w is thread w + 1.
+        fail("ThreadPool: could not start thread ", w + 1, " of ", threads_, ": ", e.what(),
+             " (lower the thread count, or raise the process limits: ulimit -u, ulimit -v)");
+      }
     }
-    wake_.notify_all();
-    for (auto& t : workers_) t.join();
   }
+  ~ThreadPool() { stop_and_join(); }
   ThreadPool(const ThreadPool&) = delete;
   ThreadPool& operator=(const ThreadPool&) = delete;
 
@@ -93,6 +108,15 @@ class ThreadPool {
 #endif
       if (i % 64 == 0 && clock::now() > deadline) return done();
     }
+  }
+  void stop_and_join() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_.store(true);
+    }
+    wake_.notify_all();
+    for (auto& t : workers_)
+      if (t.joinable()) t.join();
   }
   void work(int worker) {
     for (;;) {

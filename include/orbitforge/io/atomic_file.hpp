@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/limits.hpp"
 
 namespace orbitforge {
 
@@ -61,10 +62,15 @@ inline std::string read_file_bytes(const std::string& path) {
   ensure(!fs::is_directory(path, ec), path, ": is a directory, expected a file");
   std::ifstream in(path, std::ios::binary);
   ensure(in.is_open(), path, ": cannot open for reading");
-  std::ostringstream os;
-  os << in.rdbuf();
-  ensure(!in.bad(), path, ": read error");
-  return os.str();
+  const auto size = fs::file_size(path, ec);
+  return with_memory_context(
+      [&] {
+        std::ostringstream os;
+        os << in.rdbuf();
+        ensure(!in.bad(), path, ": read error");
+        return os.str();
+      },
+      ec ? 0 : std::uint64_t(size), "reading ", path);
 }
 
 }  // namespace orbitforge

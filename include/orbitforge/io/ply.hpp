@@ -30,12 +30,18 @@
 //
 // Errors (orbitforge::Error) name the file, the header line or the vertex index /
 // byte offset, and the problem. A vertex count larger than the data could hold is
-// rejected before anything is allocated.
+// rejected before anything is allocated. A count smaller than the data holds (data
+// after the last vertex when `vertex` is the last element) reads the declared
+// vertices and warns how many bytes were ignored: into the caller's `warnings`
+// list when given, else on stderr.
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <charconv>
 #include <cstdint>
 #include <cstring>
+#include <iostream>
+#include <sstream>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -282,8 +288,10 @@ inline PlyHeader parse_ply_header(const std::string& bytes, const std::string& n
 }
 
 // Reads a Gaussian scene from PLY bytes held in memory; `name` is used in messages.
+// Warnings (data ignored) go to `warnings` when given, else to stderr.
 template <class Scalar>
-GaussianScene<Scalar> read_ply_from_memory(const std::string& bytes, const std::string& name) {
+GaussianScene<Scalar> read_ply_from_memory(const std::string& bytes, const std::string& name,
+                                           std::vector<std::string>* warnings = nullptr) {
   using namespace ply_detail;
   const PlyHeader h = parse_ply_header(bytes, name);
 
@@ -413,51 +421,77 @@ GaussianScene<Scalar> read_ply_from_memory(const std::string& bytes, const std::
     for (std::size_t g = 0; g < n; ++g, pos += std::size_t(row))
       for (std::size_t p = 0; p < ve.properties.size(); ++p)
         put(p, g, load_binary(data + pos + std::size_t(at[p]), ve.properties[p].type, swap));
-    return scene;
-  }
-  for (std::size_t g = 0; g < n; ++g) {
-    for (std::size_t p = 0; p < ve.properties.size(); ++p) {
-      const PlyProperty& pr = ve.properties[p];
-      if (binary) {
-        std::uint64_t items = 1;
-        if (pr.is_list) {
-          const int cs = ply_type_size(pr.count_type);
-          ensure(std::size_t(cs) <= size - pos, name, ": PLY truncated at vertex ", g, " (byte offset ", pos, ")");
-          const double c = load_binary(data + pos, pr.count_type, swap);
-          ensure(c >= 0, name, ": PLY negative list length at vertex ", g, " (byte offset ", pos, ")");
-          pos += std::size_t(cs);
-          items = std::uint64_t(c);
-        }
-        const std::uint64_t isz = std::uint64_t(ply_type_size(pr.type));
-        ensure(items <= (size - pos) / isz, name, ": PLY truncated at vertex ", g, " property '", pr.name,
-               "' (byte offset ", pos, ")");
-        if (!pr.is_list) put(p, g, load_binary(data + pos, pr.type, swap));
-        pos += std::size_t(items * isz);
-      } else {
-        std::size_t b, e;
-        std::uint64_t items = 1;
-        if (pr.is_list)
-          ensure(cursor.next(b, e) && parse_u64(bytes.substr(b, e - b), items), name,
-                 ": PLY ascii data: bad or missing list length at vertex ", g, " property '", pr.name, "'");
-        for (std::uint64_t k = 0; k < items; ++k) {
-          ensure(cursor.next(b, e), name, ": PLY ascii data ends at vertex ", g, " property '", pr.name,
-                 "' (truncated)");
-          if (pr.is_list) continue;
-          double v = 0;
-          ensure(parse_ascii_number(bytes, b, e, v), name, ": PLY ascii data: bad number '",
-                 bytes.substr(b, std::min<std::size_t>(e - b, 32)), "' at vertex ", g, " property '", pr.name,
-                 "'");
-          put(p, g, v);
+  } else {
+    for (std::size_t g = 0; g < n; ++g) {
+      for (std::size_t p = 0; p < ve.properties.size(); ++p) {
+        const PlyProperty& pr = ve.properties[p];
+        if (binary) {
+          std::uint64_t items = 1;
+          if (pr.is_list) {
+            const int cs = ply_type_size(pr.count_type);
+            ensure(std::size_t(cs) <= size - pos, name, ": PLY truncated at vertex ", g, " (byte offset ", pos, ")");
+            const double c = load_binary(data + pos, pr.count_type, swap);
+            ensure(c >= 0, name, ": PLY negative list length at vertex ", g, " (byte offset ", pos, ")");
+            pos += std::size_t(cs);
+            items = std::uint64_t(c);
+          }
+          const std::uint64_t isz = std::uint64_t(ply_type_size(pr.type));
+          ensure(items <= (size - pos) / isz, name, ": PLY truncated at vertex ", g, " property '", pr.name,
+                 "' (byte offset ", pos, ")");
+          if (!pr.is_list) put(p, g, load_binary(data + pos, pr.type, swap));
+          pos += std::size_t(items * isz);
+        } else {
+          std::size_t b, e;
+          std::uint64_t items = 1;
+          if (pr.is_list)
+            ensure(cursor.next(b, e) && parse_u64(bytes.substr(b, e - b), items), name,
+                   ": PLY ascii data: bad or missing list length at vertex ", g, " property '", pr.name, "'");
+          for (std::uint64_t k = 0; k < items; ++k) {
+            ensure(cursor.next(b, e), name, ": PLY ascii data ends at vertex ", g, " property '", pr.name,
+                   "' (truncated)");
+            if (pr.is_list) continue;
+            double v = 0;
+            ensure(parse_ascii_number(bytes, b, e, v), name, ": PLY ascii data: bad number '",
+                   bytes.substr(b, std::min<std::size_t>(e - b, 32)), "' at vertex ", g, " property '", pr.name,
+                   "'");
+            put(p, g, v);
+          }
         }
       }
+    }
+  }
+
+  // Data after the declared vertices, when nothing else was declared after them:
+  // most likely a header whose vertex count is too small, so say what was dropped.
+  if (std::size_t(vi) + 1 == h.elements.size()) {
+    std::size_t extra = 0;
+    if (binary) {
+      extra = size - pos;
+    } else {
+      std::size_t begin = cursor.pos, end = size;
+      while (begin < end && std::isspace(static_cast<unsigned char>(bytes[begin]))) ++begin;
+      while (end > begin && std::isspace(static_cast<unsigned char>(bytes[end - 1]))) --end;
+      extra = end - begin;
+    }
+    if (extra > 0) {
+      std::ostringstream w;
+      w << name << ": " << extra << (binary ? " bytes" : " bytes of ascii data") << " beyond the " << n
+        << " vertices the header declares (line " << ve.header_line << ") were ignored";
+      const std::uint64_t row = ve.min_row_bytes();
+      if (binary && ve.fixed_size())
+        w << " (" << extra / row << " more vertices of " << row << " bytes"
+          << (extra % row ? " and " + std::to_string(extra % row) + " bytes" : std::string()) << ")";
+      w << "; is the header's vertex count too small?";
+      if (warnings) warnings->push_back(w.str());
+      else std::cerr << "orbitforge: warning: " << w.str() << "\n";
     }
   }
   return scene;
 }
 
 template <class Scalar>
-GaussianScene<Scalar> read_ply(const std::string& path) {
-  return read_ply_from_memory<Scalar>(read_file_bytes(path), path);
+GaussianScene<Scalar> read_ply(const std::string& path, std::vector<std::string>* warnings = nullptr) {
+  return read_ply_from_memory<Scalar>(read_file_bytes(path), path, warnings);
 }
 
 // The bytes of the standard INRIA layout (binary little endian float32).

@@ -2,13 +2,16 @@
 // Minimal binary (de)serialisation helpers for checkpoints: native-endian PODs and
 // arrays, with a tagged header so that a wrong or truncated file fails loudly.
 #include <cstdint>
+#include <cstring>
 #include <istream>
 #include <ostream>
 #include <string>
+#include <string_view>
 #include <type_traits>
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/hash.hpp"
 
 namespace orbitforge {
 namespace binary_io {
@@ -63,6 +66,39 @@ inline void read_tag(std::istream& is, const char (&tag)[9], std::uint32_t scala
   const auto sb = read<std::uint32_t>(is, tag);
   ensure(sb == scalar_bytes, "binary_io: '", std::string(tag, 8), "' record holds ", sb,
          "-byte scalars, this build reads ", scalar_bytes, "-byte scalars");
+}
+
+// Files (as opposed to streams) end in a checksum trailer: "OFCKSUM1", the
+// payload's size and its FNV-1a hash (u64 each, native order), 24 bytes. A file
+// cut short, extended or with damaged bytes is then refused as a whole instead of
+// being parsed into plausible but wrong values (0xFF bytes in a float array read
+// as NaN, not as an error).
+inline constexpr char kChecksumTag[9] = "OFCKSUM1";
+inline constexpr std::size_t kChecksumTrailerBytes = 24;
+
+inline void append_checksum(std::string& bytes) {
+  // As a string_view: fnv1a(char*, n) would pick the C-string overload (n as the seed).
+  const std::uint64_t size = bytes.size(), hash = fnv1a(std::string_view(bytes));
+  bytes.append(kChecksumTag, 8);
+  bytes.append(reinterpret_cast<const char*>(&size), 8);
+  bytes.append(reinterpret_cast<const char*>(&hash), 8);
+}
+
+// The payload of `bytes` after checking its trailer; Error saying what is wrong otherwise.
+inline std::string checked_payload(const std::string& bytes) {
+  const std::size_t n = bytes.size();
+  ensure(n >= kChecksumTrailerBytes && bytes.compare(n - kChecksumTrailerBytes, 8, kChecksumTag, 8) == 0,
+         "no checksum trailer at the end of its ", n,
+         " bytes (cut short, overwritten, or written before checkpoints carried a checksum)");
+  std::uint64_t size = 0, hash = 0;
+  std::memcpy(&size, bytes.data() + n - 16, 8);
+  std::memcpy(&hash, bytes.data() + n - 8, 8);
+  const std::size_t payload = n - kChecksumTrailerBytes;
+  ensure(size == payload, "the checksum trailer records ", size, " bytes of data, the file holds ", payload);
+  const std::uint64_t actual = fnv1a(std::string_view(bytes.data(), payload));
+  ensure(actual == hash, "checksum mismatch (FNV-1a ", hex64(actual), ", recorded ", hex64(hash),
+         "): the data is damaged");
+  return bytes.substr(0, payload);
 }
 
 }  // namespace binary_io

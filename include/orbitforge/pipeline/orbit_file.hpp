@@ -3,6 +3,7 @@
 // fitting diagnostics, as fit_orbit writes it and render_orbit / the pipeline read
 // it. Everything is in the input cameras' world frame; camera poses use the
 // library's convention x_cam = R x_world + t (OpenCV axes), R written as three rows.
+#include <cmath>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -136,9 +137,15 @@ std::vector<Camera<Scalar>> cameras_from_json(const nlohmann::json& j, const std
       return v;
     };
     Camera<Scalar> cam;
-    cam.intrinsics.width = int(num("width"));
-    cam.intrinsics.height = int(num("height"));
-    ensure(cam.intrinsics.width > 0 && cam.intrinsics.height > 0, where, ": image size must be positive");
+    // Checked before the conversion: int(3e9) is undefined.
+    auto size = [&](const char* key) {
+      const double v = num(key);
+      ensure(v >= 1 && v <= 2147483647.0 && v == std::floor(v), where, ": \"", key,
+             "\" must be an integer in [1, 2147483647], got ", v);
+      return int(v);
+    };
+    cam.intrinsics.width = size("width");
+    cam.intrinsics.height = size("height");
     cam.intrinsics.fx = Scalar(num("fx"));
     cam.intrinsics.fy = Scalar(num("fy"));
     cam.intrinsics.cx = Scalar(num("cx"));

@@ -4,7 +4,9 @@
 //
 // Resuming: a training run saves dir/partial.bin every checkpoint_every
 // iterations and dir/checkpoint.bin when it ends, each with a .key file naming
-// the stage key it belongs to (the checkpoint files carry their own checksum).
+// the stage key it belongs to. The checkpoint files end in a checksum
+// (Trainer::save_checkpoint): a damaged one is reported and training starts from
+// the beginning (or from the other checkpoint) instead.
 // A run whose finished checkpoint matches its key does not train again: an
 // interrupt after training costs only the work after it (bake, renders).
 #include <algorithm>

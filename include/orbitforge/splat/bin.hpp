@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/splat/projected.hpp"
 
@@ -298,6 +299,10 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
     }
   }
   for (std::size_t c = 0; c < chunks; ++c) ws.chunk_entries_[c + 1] += ws.chunk_entries_[c];
+  // The lists' length depends on the scene (large splats at a large size list in
+  // many tiles): check it against the memory limit now that it is known.
+  check_memory_request(total * (sizeof(std::int32_t) + sizeof(std::uint32_t)), "bin_splats: the tile lists of a ",
+                       width, "x", height, " frame (", total, " entries of ", v, " visible Gaussians)");
   ws.tile_ranks.resize(std::size_t(total));
   ws.entry_slot.resize(std::size_t(total));
   ws.rank_offsets.resize(v + 1);

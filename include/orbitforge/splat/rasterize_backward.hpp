@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/core/simd.hpp"
@@ -221,6 +222,8 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   const std::size_t lanes = std::size_t(ws.lanes.chunks) * B::size;
   ws.worker_scratch.resize(std::size_t(threads));
   for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
+  check_memory_request(std::uint64_t(bins.pairs()) * detail::kGradFields * sizeof(Scalar),
+                       "rasterize_backward: the per-entry gradients of ", bins.pairs(), " tile-list entries");
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
 

@@ -10,13 +10,17 @@
 // A Renderer owns every buffer of a frame and reuses them, so rendering frames of
 // one size allocates nothing after the first. backward() differentiates the last
 // render() and must be given the same scene and camera.
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <sstream>
+#include <string>
 
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
+#include "orbitforge/core/limits.hpp"
 #include "orbitforge/splat/bin.hpp"
 #include "orbitforge/splat/project.hpp"
 #include "orbitforge/splat/projected.hpp"
@@ -45,6 +49,62 @@ struct RenderStats {
   ProjectionStats projection;
 };
 
+// Share of a scene's Gaussians skipped as non-finite above which programs warn
+// (nonfinite_warning); a render that skips every one is an error.
+inline constexpr double kNonfiniteWarnShare = 0.01;
+
+// A warning line when more than kNonfiniteWarnShare of the Gaussians a render saw
+// were skipped as non-finite; empty otherwise.
+inline std::string nonfinite_warning(const RenderStats& s) {
+  const std::size_t n = s.projection.total(), bad = s.projection.culled_nonfinite;
+  if (n == 0 || !(double(bad) > kNonfiniteWarnShare * double(n))) return {};
+  std::ostringstream os;
+  os.precision(3);
+  os << bad << " of " << n << " Gaussians (" << 100.0 * double(bad) / double(n)
+     << " %) were skipped as non-finite (NaN or infinite parameters, a zero quaternion or a degenerate "
+        "covariance); the image lacks them";
+  return os.str();
+}
+
+// Bytes per pixel of a frame: the renderer's outputs (colour x3, transmittance and
+// depth in Scalar; blend count and backward replay length in int32), plus 6 for
+// the 8-bit copy and encoder of a caller writing a PNG. 34 for float: as measured
+// (render_orbit's peak RSS grows by 34.1 bytes per added pixel from an empty
+// 2000x2000 frame to an empty 4000x4000 one).
+inline std::uint64_t frame_bytes_per_pixel(std::size_t scalar_bytes) { return 5 * scalar_bytes + 8 + 6; }
+
+// The memory of a width x height frame before its tile lists (whose length depends
+// on the scene; bin_splats checks them once counted): per pixel as above, per tile
+// the list offsets, each thread's counts and the backward's list ends. Saturates
+// instead of overflowing.
+inline std::uint64_t frame_memory_estimate(std::uint64_t width, std::uint64_t height, int tile_size, int threads,
+                                           std::size_t scalar_bytes) {
+  const std::uint64_t ts = std::uint64_t(std::max(1, tile_size)), bpp = frame_bytes_per_pixel(scalar_bytes);
+  const std::uint64_t tiles = ((width + ts - 1) / ts) * ((height + ts - 1) / ts);
+  const std::uint64_t per_tile = 4 * std::uint64_t(std::max(1, threads)) + 8;
+  if (width != 0 && height > UINT64_MAX / width / (bpp + per_tile)) return UINT64_MAX;
+  return width * height * bpp + tiles * per_tile;
+}
+
+// Refuses a frame over the limits (orbitforge/core/limits.hpp) before anything is
+// allocated: pixel count, the rasterizer's side limit, estimated memory.
+inline void check_frame_size(int width, int height, int tile_size, int threads, std::size_t scalar_bytes) {
+  ensure(width > 0 && height > 0, "Renderer::render: the camera's image size is ", width, "x", height);
+  const std::uint64_t pixels = std::uint64_t(width) * std::uint64_t(height);
+  const std::uint64_t bytes = frame_memory_estimate(std::uint64_t(width), std::uint64_t(height), tile_size, threads,
+                                                    scalar_bytes);
+  const std::uint64_t max_pixels = limits().max_image_pixels;
+  ensure(pixels <= max_pixels, "Renderer::render: a ", width, "x", height, " frame (", pixels, " pixels, about ",
+         format_bytes(bytes), " at ", frame_bytes_per_pixel(scalar_bytes), " bytes per pixel) is over the limit of ",
+         max_pixels,
+         " pixels (orbitforge::Limits::max_image_pixels; raise it with set_limits or ORBITFORGE_MAX_IMAGE_PIXELS)");
+  // Pixel positions are float lanes in the rasterizer (rasterize.hpp).
+  ensure(width < (1 << 23) && height < (1 << 23), "Renderer::render: a ", width, "x", height,
+         " frame; the rasterizer takes sides under 8388608 pixels");
+  check_memory_request(bytes, "Renderer::render: a ", width, "x", height, " frame (", pixels, " pixels at ",
+                       frame_bytes_per_pixel(scalar_bytes), " bytes, plus per-tile arrays)");
+}
+
 template <class Scalar>
 struct RenderOutput : RasterOutput<Scalar> {
   // RasterOutput: color [H][W][3], transmittance [H][W][1] (alpha = 1 - T),
@@ -66,13 +126,28 @@ class Renderer {
     static_assert(std::is_same<typename Scene::scalar_type, Scalar>::value, "Renderer: scene of the wrong precision");
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
-    const int threads = resolve_threads(params_.threads);
+    const int threads = resolve_threads(params_.threads, "RenderParams::threads");
+    const int width = camera.intrinsics.width, height = camera.intrinsics.height;
+    check_frame_size(width, height, params_.tile_size, threads, sizeof(Scalar));
     const ProjectionParams pp = projection_params();
     out_.frame = {};
-    project_scene(scene, camera, pp, splats_, &out_.frame.projection, threads);
-    const auto t1 = clock::now();
-    bin_splats(splats_, camera.intrinsics.width, camera.intrinsics.height, params_.tile_size, bins_, threads);
-    rasterize(bins_, raster_params(threads), static_cast<RasterOutput<Scalar>&>(out_), ws_);
+    rendered_ = false;
+    auto t1 = t0;
+    with_memory_context(
+        [&] {
+          project_scene(scene, camera, pp, splats_, &out_.frame.projection, threads);
+          t1 = clock::now();
+          // A blank image with no complaint would hide a diverged or damaged scene.
+          ensure(scene.size() == 0 || out_.frame.projection.culled_nonfinite < scene.size(),
+                 "Renderer::render: all ", scene.size(),
+                 " Gaussians of the scene were skipped as non-finite (NaN or infinite parameters, a zero "
+                 "quaternion or a degenerate covariance); nothing to render");
+          bin_splats(splats_, width, height, params_.tile_size, bins_, threads);
+          rasterize(bins_, raster_params(threads), static_cast<RasterOutput<Scalar>&>(out_), ws_);
+        },
+        frame_memory_estimate(std::uint64_t(width), std::uint64_t(height), params_.tile_size, threads,
+                              sizeof(Scalar)),
+        "rendering a ", width, "x", height, " frame of ", scene.size(), " Gaussians");
     const auto t2 = clock::now();
     RenderStats& st = out_.frame;
     st.project_ms = ms(t0, t1);
@@ -110,7 +185,7 @@ class Renderer {
            "Renderer::backward: camera differs from the last render()");
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
-    const int threads = resolve_threads(params_.threads);
+    const int threads = resolve_threads(params_.threads, "RenderParams::threads");
     rasterize_backward(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
                        v_alpha, v_depth, splats_.size(), raster_grad_, ws_);
     const auto t1 = clock::now();

@@ -26,7 +26,9 @@
 // Checkpoints (save_checkpoint / load_checkpoint) hold the iteration, scene, optimizer
 // moments and steps, RNG and frame-order state, densification statistics and the
 // field with its optimizer; resuming with the same frames, params and thread count
-// continues exactly as an uninterrupted run. Written atomically (temp + rename).
+// continues exactly as an uninterrupted run. Written atomically (temp + rename);
+// checkpoint files end in a checksum (binary_io::append_checksum) and a damaged
+// or truncated one is refused whole.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -43,6 +45,7 @@
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
+#include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/deform/deformation_field.hpp"
 #include "orbitforge/io/atomic_file.hpp"
@@ -168,6 +171,7 @@ class Trainer {
       : frames_(frames), params_(params), schedule_(TrainSchedule::make(params)), scene_(std::move(initial)),
         adam_(params.adam), field_adam_(params.adam), rng_(params.seed) {
     ensure(!frames_.empty(), "Trainer: no frames");
+    resolve_threads(params.threads, "TrainParams::threads");  // over the limit: refused before anything is built
     ensure(params.max_sh_degree >= 0 && params.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ",
            params.max_sh_degree);
     ensure(params.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
@@ -240,8 +244,20 @@ class Trainer {
     }
   }
 
-  // One iteration; returns its report.
+  // One iteration; returns its report. A std::bad_alloc inside becomes OutOfMemory
+  // naming the iteration and the model's size (the trainer is then unusable).
   const TrainProgress& step() {
+    const std::size_t n = scene_.size();
+    const std::uint64_t per_gaussian = std::uint64_t(11 + 3 * sh_coefficient_count(params_.max_sh_degree));
+    return with_memory_context([this]() -> const TrainProgress& { return step_unchecked(); },
+                               // parameters, gradients and two optimizer moments
+                               std::uint64_t(n) * per_gaussian * sizeof(Scalar) * 4, "training iteration ",
+                               iteration_ + 1, " of ", params_.iterations, " (", n,
+                               " Gaussians; their parameters, gradients and optimizer moments)");
+  }
+
+ private:
+  const TrainProgress& step_unchecked() {
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
     ensure(iteration_ < params_.iterations, "Trainer::step: the budget of ", params_.iterations,
@@ -337,6 +353,7 @@ class Trainer {
     return last_;
   }
 
+ public:
   // Renders the current model for a camera at time code t (deformed when the
   // deformation is active at the current iteration). The image is the renderer's
   // buffer: valid until the next render or training step.
@@ -384,10 +401,13 @@ class Trainer {
     ensure(bool(os), "Trainer::save_checkpoint: write failed");
   }
 
+  // The file form: the stream form plus a checksum trailer.
   void save_checkpoint(const std::string& path) const {
     std::ostringstream os(std::ios::binary);
     save_checkpoint(os);
-    write_file_atomic(path, os.str());
+    std::string bytes = os.str();
+    binary_io::append_checksum(bytes);
+    write_file_atomic(path, bytes);
   }
 
   // Replaces the training state with the checkpoint's. The trainer must have been
@@ -466,9 +486,11 @@ class Trainer {
     }
   }
 
+  // Refuses a file whose checksum does not match before reading any of it.
   void load_checkpoint(const std::string& path) {
-    std::istringstream is(read_file_bytes(path), std::ios::binary);
+    const std::string bytes = read_file_bytes(path);
     try {
+      std::istringstream is(binary_io::checked_payload(bytes), std::ios::binary);
       load_checkpoint(is);
     } catch (const Error& e) {
       fail(path, ": ", e.what());
