@@ -31,7 +31,8 @@ TEMPLATE_TEST_CASE("fit_plane recovers a randomly oriented plane and orients its
     const auto Rw = orbitforge_test::random_rotation<S>(rng);
     const V3<S> n_true = Rw.col(2), c(S(1), S(-2), S(3));
     const auto pts = ring<S>(Rw, c, 120, 30);
-    SECTION("camera up decides") {
+    {  // every trial runs every case (SECTIONs inside a loop would run once)
+      INFO("trial " << trial << ": camera up decides");
       // Up mostly along n (and a little sideways); forward pointing along +n would
       // contradict look-down, but the up rule has priority.
       const V3<S> up = (S(0.8) * n_true + S(0.3) * Rw.col(0));
@@ -45,7 +46,8 @@ TEMPLATE_TEST_CASE("fit_plane recovers a randomly oriented plane and orients its
       const auto pf2 = fit_plane(pts, V3<S>(-up), V3<S>(n_true));
       REQUIRE((pf2.normal + n_true).norm() < 1e-4);
     }
-    SECTION("rolled cameras: the look-down side decides") {
+    {  // every trial runs every case (SECTIONs inside a loop would run once)
+      INFO("trial " << trial << ": rolled cameras: the look-down side decides");
       const V3<S> up = Rw.col(0) * S(0.1);      // |n . up| < 0.2
       const V3<S> fwd = -S(0.27) * n_true;      // cameras look down along -n
       const auto pf = fit_plane(pts, up, fwd);
@@ -54,7 +56,8 @@ TEMPLATE_TEST_CASE("fit_plane recovers a randomly oriented plane and orients its
       const auto pf2 = fit_plane(pts, up, V3<S>(-fwd));
       REQUIRE((pf2.normal + n_true).norm() < 1e-4);
     }
-    SECTION("neither rule: ambiguous, deterministic") {
+    {  // every trial runs every case (SECTIONs inside a loop would run once)
+      INFO("trial " << trial << ": neither rule: ambiguous, deterministic");
       const auto pf = fit_plane(pts, V3<S>(V3<S>::Zero()), V3<S>(V3<S>::Zero()));
       REQUIRE(pf.normal_rule == "ambiguous");
       REQUIRE(std::abs(std::abs(pf.normal.dot(n_true)) - 1) < 1e-4);

@@ -4,6 +4,7 @@
 // skip, and a missing folder fails the test instead.
 #include <catch2/catch.hpp>
 
+#include <cctype>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -11,8 +12,12 @@
 namespace orbitforge_test {
 
 inline bool running_in_ci() {
+  // CI services set CI to "true", "1", "yes" ...: anything but empty, 0 or false.
   const char* ci = std::getenv("CI");
-  return ci != nullptr && std::string(ci) == "true";
+  if (ci == nullptr) return false;
+  std::string v(ci);
+  for (char& c : v) c = char(std::tolower(static_cast<unsigned char>(c)));
+  return !v.empty() && v != "0" && v != "false" && v != "no";
 }
 
 inline std::filesystem::path shared_data_dir() {
