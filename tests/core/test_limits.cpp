@@ -16,16 +16,7 @@
 #include <sys/resource.h>
 #endif
 
-// Tests that cap RLIMIT_AS cannot run beside a sanitizer's shadow memory.
-#ifndef ORBITFORGE_TEST_SANITIZED
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define ORBITFORGE_TEST_SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define ORBITFORGE_TEST_SANITIZED 1
-#endif
-#endif
-#endif
+#include "support/sanitizer.hpp"  // ORBITFORGE_TEST_SANITIZED
 
 using namespace orbitforge;
 
