@@ -108,6 +108,25 @@ void copy_run(const fs::path& from, const fs::path& to) {
   fs::copy(from, to, fs::copy_options::recursive);
 }
 
+// A copy of the oracle run that forgets G1 (its record and outputs), as if the
+// run had never reached it, then is interrupted halfway between G1's first and
+// second partial checkpoints. Returns the run's parameters.
+PipelineParams interrupt_g1(const fs::path& dir) {
+  copy_run(oracle_run(), dir);
+  fs::remove(dir / "stages" / "g1.json");
+  fs::remove(dir / "final.ply");
+  fs::remove_all(dir / "g1");
+  fs::remove_all(dir / "R1");
+  PipelineParams p = oracle_params();
+  p.checkpoint_every = kQuick ? 20 : 100;  // not part of any stage key
+  const int stop_at = p.checkpoint_every + p.checkpoint_every / 2;
+  p.on_iteration = [stop_at](const std::string& label, int it) {
+    if (label == "G1" && it == stop_at) throw std::runtime_error("interrupted");
+  };
+  REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), p, dir.string()), "interrupted");
+  return p;
+}
+
 }  // namespace
 
 TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R0 in the gap", "[pipeline][full]") {
@@ -309,19 +328,7 @@ TEST_CASE("pipeline: an interrupted run resumes from its partial checkpoint and 
           "[pipeline][resume]") {
   const fs::path& ref = oracle_run();
   const fs::path dir = scratch().root / "interrupted";
-  copy_run(ref, dir);
-  // Forget G1 (its record and outputs), as if the run had never reached it.
-  fs::remove(dir / "stages" / "g1.json");
-  fs::remove(dir / "final.ply");
-  fs::remove_all(dir / "g1");
-  fs::remove_all(dir / "R1");
-  PipelineParams p = oracle_params();
-  p.checkpoint_every = kQuick ? 20 : 100;  // not part of any stage key
-  const int stop_at = p.checkpoint_every + p.checkpoint_every / 2;
-  p.on_iteration = [stop_at](const std::string& label, int it) {
-    if (label == "G1" && it == stop_at) throw std::runtime_error("interrupted");
-  };
-  REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), p, dir.string()), "interrupted");
+  PipelineParams p = interrupt_g1(dir);
   CHECK(fs::exists(dir / "g1" / "partial.bin"));
   CHECK_FALSE(fs::exists(dir / "final.ply"));
   CHECK(read_file_bytes((dir / "gmed0.ply").string()) == read_file_bytes((ref / "gmed0.ply").string()));
@@ -348,18 +355,7 @@ TEST_CASE("pipeline: an interrupted run resumes from its partial checkpoint and 
 TEST_CASE("pipeline: a damaged partial checkpoint is not resumed", "[pipeline][resume]") {
   const fs::path& ref = oracle_run();
   const fs::path dir = scratch().root / "damaged_partial";
-  copy_run(ref, dir);
-  fs::remove(dir / "stages" / "g1.json");
-  fs::remove(dir / "final.ply");
-  fs::remove_all(dir / "g1");
-  fs::remove_all(dir / "R1");
-  PipelineParams p = oracle_params();
-  p.checkpoint_every = kQuick ? 20 : 100;
-  const int stop_at = p.checkpoint_every + p.checkpoint_every / 2;
-  p.on_iteration = [stop_at](const std::string& label, int it) {
-    if (label == "G1" && it == stop_at) throw std::runtime_error("interrupted");
-  };
-  REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), p, dir.string()), "interrupted");
+  PipelineParams p = interrupt_g1(dir);
   const fs::path partial = dir / "g1" / "partial.bin";
   REQUIRE(fs::exists(partial));
   std::string bytes = read_file_bytes(partial.string());

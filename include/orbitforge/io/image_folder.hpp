@@ -12,6 +12,13 @@
 
 namespace orbitforge {
 
+// "0007.png" for (7, 4): zero-padded so that name order is frame order.
+inline std::string numbered_png(int i, int digits) {
+  std::string n = std::to_string(i);
+  if (int(n.size()) < digits) n.insert(0, std::size_t(digits) - n.size(), '0');
+  return n + ".png";
+}
+
 inline bool is_image_file_name(const std::string& name) {
   const auto dot = name.rfind('.');
   if (dot == std::string::npos || dot == 0) return false;

@@ -32,6 +32,7 @@
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/input.hpp"
 
@@ -252,11 +253,7 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
     return r;
   }
 
-  static std::string frame_name(int j) {
-    char b[32];
-    std::snprintf(b, sizeof(b), "%04d.png", j);
-    return b;
-  }
+  static std::string frame_name(int j) { return numbered_png(j, 4); }
   static std::filesystem::path completed_path(const std::string& folder, int j) {
     return std::filesystem::path(folder) / "completed" / frame_name(j);
   }

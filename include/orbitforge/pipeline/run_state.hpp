@@ -17,6 +17,7 @@
 #include "orbitforge/pipeline/params.hpp"
 #include "orbitforge/pipeline/prompt.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
+#include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/trainer.hpp"
 
@@ -26,11 +27,7 @@ namespace pipeline_detail {
 
 namespace fs = std::filesystem;
 
-inline std::string view_file(int v) {
-  char b[32];
-  std::snprintf(b, sizeof(b), "%04d.png", v);
-  return b;
-}
+inline std::string view_file(int v) { return numbered_png(v, 4); }
 
 inline std::vector<int> rendered_views(int views, int stride) {
   std::vector<int> v;

@@ -75,11 +75,7 @@ inline std::vector<std::pair<std::string, std::string>> camera_stage_programs(co
 namespace cameras_detail {
 namespace fs = std::filesystem;
 
-inline std::string frame_name(int i) {
-  char b[32];
-  std::snprintf(b, sizeof(b), "%05d.png", i);
-  return b;
-}
+inline std::string frame_name(int i) { return numbered_png(i, 5); }
 
 inline std::uint64_t hash_file(const std::string& path, std::uint64_t h) {
   std::ifstream in(path, std::ios::binary);
