@@ -1,7 +1,9 @@
 // host_adaptor: render Gaussians that live in a host program's own storage
-// (an array of structs in double precision, standard deviations, quaternions
-// x, y, z, w) without copying them, and get gradients back in that
-// parametrisation. The contract is splat/scene_adaptor.hpp.
+// (an array of structs in double precision, standard deviations, opacities,
+// quaternions x, y, z, w) without copying them, and have the backward pass write
+// gradients straight into the host's arrays in that parametrisation. The
+// contracts: splat/scene_adaptor.hpp (reading) and splat/scene_grad_view.hpp
+// (writing).
 //
 //   host_adaptor OUT.png
 #include <cmath>
@@ -13,6 +15,9 @@
 
 struct HostSplat {  // the host's type
   double xyz[3], quat_xyzw[4], sigma[3], opacity, rgb[3];
+};
+struct HostSplatGrad {  // and its gradients, one per splat
+  double xyz[3], quat_xyzw[4], sigma[3], opacity, sh_dc[3];
 };
 
 // The adaptor: a few accessors over the host's vector.
@@ -51,11 +56,21 @@ int main(int argc, char** argv) {
   const SplatAdaptor view{splats};
   write_png(argv[1], renderer.render(view, cam).color);
 
-  // d(mean brightness)/d(parameters), in the host's parametrisation: the scale
-  // gradient is d/d(sigma) because scale_mode is activated.
+  // d(mean brightness)/d(parameters), written into the host's gradient structs:
+  // d/d sigma, d/d opacity, quaternion x, y, z, w.
+  std::vector<HostSplatGrad> grads(splats.size());
+  SceneGradView<double> into;
+  into.size = grads.size();
+  into.means = strided(grads[0].xyz, sizeof(HostSplatGrad));
+  into.rotations = strided(grads[0].quat_xyzw, sizeof(HostSplatGrad));
+  into.rotation_order = QuatOrder::xyzw;
+  into.scales = strided(grads[0].sigma, sizeof(HostSplatGrad));
+  into.opacities = strided(&grads[0].opacity, sizeof(HostSplatGrad));
+  into.sh = strided(grads[0].sh_dc, sizeof(HostSplatGrad));
   Image<double> v_color(128, 128, 3, 1.0 / (128.0 * 128.0 * 3.0));
-  const GaussianSceneGrad<double>& g = renderer.backward(view, cam, v_color);
-  std::printf("splat 0: d brightness / d sigma = (%.4g, %.4g, %.4g), d / d opacity logit = %.4g\n",
-              g.log_scales[0], g.log_scales[1], g.log_scales[2], g.opacity_logits[0]);
+  renderer.backward(view, cam, v_color, into);
+  const HostSplatGrad& g = grads[0];
+  std::printf("splat 0: d brightness / d sigma = (%.4g, %.4g, %.4g), d / d opacity = %.4g\n", g.sigma[0], g.sigma[1],
+              g.sigma[2], g.opacity);
   return 0;
 }

@@ -1,47 +1,25 @@
-// quick_start: the library in a few calls (the README's C++ quick start).
-//
-//   quick_start COLMAP_MODEL_DIR SCENE.ply OUT.png
-//
-// Fits the canonical 361-view orbit to the cameras of a COLMAP model (frames
-// 1-33 in name order: the source video), prints where the source supports the
-// orbit, and renders an INRIA-PLY Gaussian scene at the orbit view opposite the
-// first source frame (the middle of the gap a video model must complete).
+// Render two Gaussians and differentiate the image's mean brightness.
+#include <cmath>
 #include <cstdio>
-#include <exception>
 
-#include "orbitforge/geometry/orbit.hpp"
-#include "orbitforge/io/colmap.hpp"
-#include "orbitforge/io/image_io.hpp"
-#include "orbitforge/io/ply.hpp"
 #include "orbitforge/splat/renderer.hpp"
+using namespace orbitforge;
 
-int main(int argc, char** argv) {
-  using namespace orbitforge;
-  if (argc != 4) {
-    std::fprintf(stderr, "usage: quick_start COLMAP_MODEL_DIR SCENE.ply OUT.png\n");
-    return 2;
-  }
-  try {
-    // The source video's cameras, in frame order (colmap_frame_cameras sorts by name).
-    std::vector<FrameCamera<float>> cameras = colmap_frame_cameras<float>(read_colmap_model(argv[1]));
-    if (cameras.size() > 33) cameras.resize(33);
+int main() {
+  GaussianScene<float> scene;  // struct of arrays; rotations w, x, y, z; log standard deviations
+  scene.resize(2, /*sh_degree=*/0);
+  scene.means = {-0.4f, 0, 0, 0.4f, 0, 0};
+  scene.log_scales.assign(6, std::log(0.25f));
+  scene.opacity_logits = {2, 2};  // opacity = sigmoid(logit)
+  scene.sh = {1.5f, 0, 0, 0, 0, 1.5f};  // degree-0 SH per colour channel: red, blue
 
-    // The canonical orbit: 361 views at 512 x 512, 10 degrees above the source.
-    OrbitParams op;
-    op.width = op.height = 512;
-    const OrbitFit<float> fit = fit_orbit(cameras, op);
-    std::printf("radius %.3f, source arc %zu views, gap %zu views\n", double(fit.orbit.radius),
-                fit.support.arc.size(), fit.support.gap.size());
+  const Intrinsics<float> k{100, 100, 64, 64, 128, 128};  // fx, fy, cx, cy, width, height
+  const Camera<float> camera = Camera<float>::look_at({0, -3, 0}, {0, 0, 0}, {0, 0, 1}, k);
+  Renderer<float> renderer;  // owns and reuses every buffer of a frame
+  const RenderOutput<float>& image = renderer.render(SceneView<float>(scene), camera);
 
-    // Render a scene at the view half a turn from the first source frame.
-    const GaussianScene<float> scene = read_ply<float>(argv[2]);
-    Renderer<float> renderer;  // RenderParams: background, threads, SH degree ...
-    const auto& out = renderer.render(SceneView<float>(scene), fit.cameras[std::size_t(fit.views / 2)]);
-    write_png(argv[3], out.color);
-    std::printf("%zu Gaussians visible -> %s\n", out.frame.gaussians_visible, argv[3]);
-    return 0;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "quick_start: %s\n", e.what());
-    return 1;
-  }
+  Image<float> v_color(128, 128, 3, 1.0f / (128 * 128 * 3));  // dL/d colour for L = mean
+  const GaussianSceneGrad<float>& g = renderer.backward(SceneView<float>(scene), camera, v_color);
+  std::printf("centre pixel red %.3f; dL/d(opacity logit) %.4g %.4g; %.2f ms\n",
+              image.color(64, 64, 0), g.opacity_logits[0], g.opacity_logits[1], image.frame.total_ms);
 }

@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "orbitforge/splat/renderer.hpp"
@@ -59,14 +60,11 @@ static_assert(is_scene_adaptor_v<SceneView<float>> && is_scene_adaptor_v<SceneVi
 static_assert(!is_scene_adaptor_v<MissingScaleMode>, "a missing scale_mode is detected");
 static_assert(!is_scene_adaptor_v<int>, "a non-adaptor is detected");
 
-}  // namespace
-
-TEST_CASE("an array-of-structs double adaptor renders and differentiates like the library's scene",
-          "[splat][adaptor]") {
-  std::mt19937 rng(3);
+// Random Gaussians in front of the default camera, as the host's structs and as
+// the library's SoA scene.
+void make_host_scene(std::mt19937& rng, std::vector<HostGaussian>& host, GaussianScene<double>& scene) {
   std::uniform_real_distribution<double> u(-1, 1), pos(0.05, 0.95);
-  std::vector<HostGaussian> host(300);
-  GaussianScene<double> scene;
+  host.resize(300);
   scene.resize(host.size(), 0);
   for (std::size_t i = 0; i < host.size(); ++i) {
     HostGaussian& h = host[i];
@@ -90,6 +88,15 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
     for (int a = 0; a < 3; ++a) scene.rotations[4 * i + 1 + a] = h.quat_xyzw[a];
     scene.opacity_logits[i] = std::log(h.opacity / (1 - h.opacity));
   }
+}
+}  // namespace
+
+TEST_CASE("an array-of-structs double adaptor renders and differentiates like the library's scene",
+          "[splat][adaptor]") {
+  std::mt19937 rng(3);
+  std::vector<HostGaussian> host;
+  GaussianScene<double> scene;
+  make_host_scene(rng, host, scene);
   Camera<double> cam;
   cam.intrinsics = {60, 60, 32, 24, 64, 48};
   const HostAdaptor adaptor{&host};
@@ -126,4 +133,96 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
     REQUIRE(g_host.opacity_logits[i] == Approx(g_lib.opacity_logits[i]).margin(1e-12));
     for (int k = 0; k < 4; ++k) REQUIRE(g_host.rotations[4 * i + k] == Approx(g_lib.rotations[4 * i + k]).margin(1e-12));
   }
+}
+
+TEST_CASE("backward writes into the host's own arrays, in the host's parametrisation", "[splat][adaptor]") {
+  std::mt19937 rng(5);
+  std::vector<HostGaussian> host;
+  GaussianScene<double> scene;
+  make_host_scene(rng, host, scene);
+  Camera<double> cam;
+  cam.intrinsics = {60, 60, 32, 24, 64, 48};
+  const HostAdaptor adaptor{&host};
+  Image<double> v(64, 48, 3);
+  std::uniform_real_distribution<double> gv(-1, 1);
+  for (double& x : v.data) x = gv(rng);
+
+  Renderer<double> lib;
+  lib.render(SceneView<double>(scene), cam);
+  const GaussianSceneGrad<double> g = lib.backward(SceneView<double>(scene), cam, v);
+
+  // The host keeps one gradient struct per Gaussian; one field is not asked for
+  // and must stay untouched.
+  struct HostGrad {
+    double xyz[3], quat_xyzw[4], sigma[3], log_sigma[3], opacity, logit, rgb_dc[3], untouched;
+  };
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  std::vector<HostGrad> hg(host.size(), HostGrad{{nan, nan, nan}, {nan, nan, nan, nan}, {nan, nan, nan},
+                                                 {nan, nan, nan}, nan, nan, {nan, nan, nan}, 7.0});
+  SceneGradView<double> view;
+  view.size = hg.size();
+  const std::ptrdiff_t stride = sizeof(HostGrad);
+  view.means = strided(hg[0].xyz, stride);
+  view.rotations = strided(hg[0].quat_xyzw, stride);
+  view.rotation_order = QuatOrder::xyzw;
+  view.scales = strided(hg[0].sigma, stride);
+  view.log_scales = strided(hg[0].log_sigma, stride);
+  view.opacities = strided(&hg[0].opacity, stride);
+  view.opacity_logits = strided(&hg[0].logit, stride);
+  view.sh = strided(hg[0].rgb_dc, stride);
+  Renderer<double> r;
+  r.render(adaptor, cam);
+  r.backward(adaptor, cam, v, view);
+
+  double largest_sigma = 0;
+  for (std::size_t i = 0; i < host.size(); ++i) {
+    const HostGrad& h = hg[i];
+    const double o = host[i].opacity;
+    for (int a = 0; a < 3; ++a) {
+      REQUIRE(h.xyz[a] == Approx(g.means[3 * i + a]).margin(1e-12));
+      REQUIRE(h.log_sigma[a] == Approx(g.log_scales[3 * i + a]).margin(1e-12));
+      REQUIRE(h.sigma[a] == Approx(g.log_scales[3 * i + a] / host[i].sigma[a]).margin(1e-10));
+      REQUIRE(h.rgb_dc[a] == Approx(g.sh[3 * i + a]).margin(1e-12));
+      largest_sigma = std::max(largest_sigma, std::abs(h.sigma[a]));
+    }
+    REQUIRE(h.quat_xyzw[3] == Approx(g.rotations[4 * i]).margin(1e-12));
+    for (int a = 0; a < 3; ++a) REQUIRE(h.quat_xyzw[a] == Approx(g.rotations[4 * i + 1 + a]).margin(1e-12));
+    REQUIRE(h.logit == Approx(g.opacity_logits[i]).margin(1e-12));
+    REQUIRE(h.opacity * o * (1 - o) == Approx(g.opacity_logits[i]).margin(1e-12));
+    REQUIRE(h.untouched == 7.0);
+  }
+  REQUIRE(largest_sigma > 1e-3);
+
+  // Finite differences of L = <v, colour> in the host's own parameters.
+  auto loss = [&] {
+    Renderer<double> f;
+    const Image<double>& c = f.render(adaptor, cam).color;
+    double l = 0;
+    for (std::size_t k = 0; k < c.data.size(); ++k) l += v.data[k] * c.data[k];
+    return l;
+  };
+  int checked = 0;
+  for (std::size_t i = 0; i < host.size() && checked < 6; i += 37) {
+    if (std::abs(hg[i].opacity) < 1e-3) continue;
+    const double h = 1e-6;
+    auto fd = [&](double& x) {
+      const double x0 = x;
+      x = x0 + h;
+      const double lp = loss();
+      x = x0 - h;
+      const double lm = loss();
+      x = x0;
+      return (lp - lm) / (2 * h);
+    };
+    REQUIRE(fd(host[i].opacity) == Approx(hg[i].opacity).epsilon(1e-4).margin(1e-7));
+    REQUIRE(fd(host[i].sigma[0]) == Approx(hg[i].sigma[0]).epsilon(1e-4).margin(1e-7));
+    REQUIRE(fd(host[i].quat_xyzw[1]) == Approx(hg[i].quat_xyzw[1]).epsilon(1e-4).margin(1e-7));
+    ++checked;
+  }
+  REQUIRE(checked >= 3);
+
+  // A view of the wrong size is refused before anything is written.
+  SceneGradView<double> small = view;
+  small.size = host.size() - 1;
+  REQUIRE_THROWS_WITH(r.backward(adaptor, cam, v, small), Catch::Contains("gradient view is for 299 Gaussians"));
 }

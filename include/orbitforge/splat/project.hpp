@@ -9,7 +9,9 @@
 // SceneView<S> adapts a GaussianScene<S>; DeformedSceneView<S> renders the
 // deformable state x + dx, normalize(q) + dq, exp(log s) + ds of a base scene
 // without copying it. A host renderer writes its own adaptor over its storage.
-// Gradients (project_scene_vjp) are w.r.t. exactly what the adaptor returns.
+// Gradients (project_scene_vjp) go into a GaussianSceneGrad, w.r.t. exactly what
+// the adaptor returns, or into the caller's own arrays through a SceneGradView
+// (splat/scene_grad_view.hpp), in the parametrisation the view asks for.
 // ---------------------------------------------------------------------------
 //
 // Conventions (docs/conventions.md):
@@ -48,6 +50,7 @@
 #include "orbitforge/splat/projected.hpp"
 #include "orbitforge/splat/scene_adaptor.hpp"
 #include "orbitforge/splat/scene_grad.hpp"
+#include "orbitforge/splat/scene_grad_view.hpp"
 #include "orbitforge/splat/sh.hpp"
 
 namespace orbitforge {
@@ -656,11 +659,116 @@ void project_scene(const Scene& scene, const Camera<typename Scene::scalar_type>
   }
 }
 
-// Gradients w.r.t. the scene parameters as the adaptor exposes them, given the
-// forward result `fwd` (same scene, camera and params) and the rasterizer's
-// gradients `v_in`. Non-frozen groups of `out` are overwritten (zero for culled
-// Gaussians); frozen groups are never written (see Freeze). screen_grad_norm and
-// screen_grad_ndc_norm are always written.
+namespace detail {
+inline void check_vjp_inputs(std::size_t n, std::size_t fwd_size) {
+  ensure(fwd_size == n, "project_scene_vjp: forward result has ", fwd_size, " Gaussians, scene has ", n);
+}
+
+// The VJP of project_scene into a gradient view. `freeze` says which groups are
+// computed (derived from the view's null fields, plus the SH dc/rest split of
+// GaussianSceneGrad's Freeze).
+template <class Scene>
+void project_scene_vjp_into(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
+                            const ProjectionParams& params, const ProjectedSplats<typename Scene::scalar_type>& fwd,
+                            const ProjectedSplatsGrad<typename Scene::scalar_type>& v_in,
+                            const SceneGradView<typename Scene::scalar_type>& out, const Freeze& freeze,
+                            int threads) {
+  using Scalar = typename Scene::scalar_type;
+  const auto cam = ProjectionCamera<Scalar>::make(camera, params);
+  const int degree = scene.sh_degree();
+  ensure(degree >= 0 && degree <= 3, "project_scene_vjp: SH degree must be 0..3, got ", degree);
+  const std::size_t n = scene.size();
+  const int k_count = sh_coefficient_count(degree);
+  check_vjp_inputs(n, fwd.size());
+  ensure(out.size == n, "project_scene_vjp: the gradient view is for ", out.size, " Gaussians, the scene has ", n);
+  for (const auto* v : {&v_in.v_mean_x, &v_in.v_mean_y, &v_in.v_conic_a, &v_in.v_conic_b, &v_in.v_conic_c,
+                        &v_in.v_opacity, &v_in.v_color_r, &v_in.v_color_g, &v_in.v_color_b, &v_in.v_depth})
+    ensure(v->size() == n, "project_scene_vjp: a ProjectedSplatsGrad array has ", v->size(), " entries, expected ",
+           n);
+  const Scalar half_w = Scalar(0.5) * Scalar(cam.width), half_h = Scalar(0.5) * Scalar(cam.height);
+  const int sh_first = freeze.sh_dc ? 1 : 0, sh_end = freeze.sh_rest ? 1 : k_count;
+  const bool xyzw = out.rotation_order == QuatOrder::xyzw;
+
+  const std::size_t chunk = std::max<std::size_t>(1, params.chunk);
+  const std::size_t chunks = (n + chunk - 1) / chunk;
+  parallel_for(chunks, threads, [&](std::size_t ci, int) {
+    Scalar sh_buf[48], v_sh[48];
+    Scalar v_mean[3] = {0, 0, 0}, v_quat[4] = {0, 0, 0, 0}, v_scale[3] = {0, 0, 0}, v_logit = 0;
+    GaussianParams<Scalar> g;
+    SplatGrad<Scalar> vg;
+    const std::size_t end = std::min(n, (ci + 1) * chunk);
+    for (std::size_t i = ci * chunk; i < end; ++i) {
+      const bool kept = fwd.radius[i] > 0;
+      Scalar scale[3] = {0, 0, 0}, opacity = 0, screen = 0, screen_ndc = 0;
+      if (kept) {
+        gather_gaussian(scene, i, degree, g, sh_buf);
+        vg.v_mean_x = v_in.v_mean_x[i];
+        vg.v_mean_y = v_in.v_mean_y[i];
+        vg.v_conic_a = v_in.v_conic_a[i];
+        vg.v_conic_b = v_in.v_conic_b[i];
+        vg.v_conic_c = v_in.v_conic_c[i];
+        vg.v_opacity = v_in.v_opacity[i];
+        vg.v_color[0] = v_in.v_color_r[i];
+        vg.v_color[1] = v_in.v_color_g[i];
+        vg.v_color[2] = v_in.v_color_b[i];
+        vg.v_depth = v_in.v_depth[i];
+        project_gaussian_vjp(cam, g, vg, freeze, v_mean, v_quat, v_scale, &v_logit, v_sh);
+        for (int a = 0; a < 3; ++a) scale[a] = g.scale[a];
+        opacity = vg.v_opacity;
+        screen = std::sqrt(vg.v_mean_x * vg.v_mean_x + vg.v_mean_y * vg.v_mean_y);
+        const Scalar nx = vg.v_mean_x * half_w, ny = vg.v_mean_y * half_h;
+        screen_ndc = std::sqrt(nx * nx + ny * ny);
+      }
+      const Scalar z = Scalar(0);
+      if (out.means)
+        for (int a = 0; a < 3; ++a) out.means.at(i)[a] = kept ? v_mean[a] : z;
+      if (out.rotations) {
+        Scalar* q = out.rotations.at(i);
+        for (int a = 0; a < 4; ++a) q[xyzw ? (a + 3) % 4 : a] = kept ? v_quat[a] : z;  // w goes last for xyzw
+      }
+      for (int a = 0; a < 3; ++a) {
+        if (out.scales) out.scales.at(i)[a] = kept ? v_scale[a] : z;
+        if (out.log_scales) out.log_scales.at(i)[a] = kept ? v_scale[a] * scale[a] : z;  // ds / dlog s = s
+      }
+      if (out.opacity_logits) *out.opacity_logits.at(i) = kept ? v_logit : z;
+      if (out.opacities) *out.opacities.at(i) = kept ? opacity : z;
+      if (out.sh) {
+        char* base = reinterpret_cast<char*>(out.sh.at(i));
+        for (int k = sh_first; k < sh_end; ++k) {
+          Scalar* dst = reinterpret_cast<Scalar*>(base + std::ptrdiff_t(k) * out.sh_coefficient_stride_bytes);
+          for (int c = 0; c < 3; ++c) dst[c] = kept ? v_sh[3 * k + c] : z;
+        }
+      }
+      if (out.screen_grad_norm) *out.screen_grad_norm.at(i) = screen;
+      if (out.screen_grad_ndc_norm) *out.screen_grad_ndc_norm.at(i) = screen_ndc;
+    }
+  });
+}
+}  // namespace detail
+
+// Gradients into the caller's storage (splat/scene_grad_view.hpp), in the
+// parametrisation the view asks for, given the forward result `fwd` (same scene,
+// camera and params) and the rasterizer's gradients `v_in`.
+template <class Scene>
+void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
+                       const ProjectionParams& params, const ProjectedSplats<typename Scene::scalar_type>& fwd,
+                       const ProjectedSplatsGrad<typename Scene::scalar_type>& v_in,
+                       const SceneGradView<typename Scene::scalar_type>& out, int threads = 0) {
+  static_assert(check_scene_adaptor<Scene>(), "project_scene_vjp: Scene is not a scene adaptor");
+  Freeze freeze;
+  freeze.means = !out.means;
+  freeze.rotations = !out.rotations;
+  freeze.scales = !out.scales && !out.log_scales;
+  freeze.opacities = !out.opacity_logits;  // d/d opacity needs no work
+  freeze.sh_dc = freeze.sh_rest = !out.sh;
+  detail::project_scene_vjp_into(scene, camera, params, fwd, v_in, out, freeze, threads);
+}
+
+// Gradients w.r.t. the scene parameters as the adaptor exposes them, into a
+// GaussianSceneGrad (log_scales holds d/d log s for ScaleMode::log adaptors and
+// d/d s for activated ones). Non-frozen groups of `out` are overwritten (zero for
+// culled Gaussians); frozen groups are never written (see Freeze), only sized.
+// screen_grad_norm and screen_grad_ndc_norm are always written.
 template <class Scene>
 void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
                        const ProjectionParams& params, const ProjectedSplats<typename Scene::scalar_type>& fwd,
@@ -669,17 +777,11 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
                        int threads = 0) {
   static_assert(check_scene_adaptor<Scene>(), "project_scene_vjp: Scene is not a scene adaptor");
   using Scalar = typename Scene::scalar_type;
-  const auto cam = ProjectionCamera<Scalar>::make(camera, params);
   const int degree = scene.sh_degree();
   ensure(degree >= 0 && degree <= 3, "project_scene_vjp: SH degree must be 0..3, got ", degree);
   const std::size_t n = scene.size();
-  const int k_count = sh_coefficient_count(degree);
-  ensure(fwd.size() == n, "project_scene_vjp: forward result has ", fwd.size(), " Gaussians, scene has ", n);
-  for (const auto* v : {&v_in.v_mean_x, &v_in.v_mean_y, &v_in.v_conic_a, &v_in.v_conic_b, &v_in.v_conic_c,
-                        &v_in.v_opacity, &v_in.v_color_r, &v_in.v_color_g, &v_in.v_color_b, &v_in.v_depth})
-    ensure(v->size() == n, "project_scene_vjp: a ProjectedSplatsGrad array has ", v->size(), " entries, expected ",
-           n);
-
+  detail::check_vjp_inputs(n, fwd.size());
+  const std::size_t sh_size = 3 * std::size_t(sh_coefficient_count(degree)) * n;
   auto prepare = [](std::vector<Scalar>& v, std::size_t size, bool frozen) {
     if (!frozen)
       v.resize(size);
@@ -691,55 +793,24 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
   prepare(out.rotations, 4 * n, freeze.rotations);
   prepare(out.log_scales, 3 * n, freeze.scales);
   prepare(out.opacity_logits, n, freeze.opacities);
-  prepare(out.sh, 3 * std::size_t(k_count) * n, freeze.sh_dc && freeze.sh_rest);
-  if (out.sh.size() != 3 * std::size_t(k_count) * n) out.sh.assign(3 * std::size_t(k_count) * n, Scalar(0));
+  prepare(out.sh, sh_size, freeze.sh_dc && freeze.sh_rest);
+  if (out.sh.size() != sh_size) out.sh.assign(sh_size, Scalar(0));
   out.screen_grad_norm.resize(n);
   out.screen_grad_ndc_norm.resize(n);
-  const Scalar half_w = Scalar(0.5) * Scalar(cam.width), half_h = Scalar(0.5) * Scalar(cam.height);
 
-  const std::size_t chunk = std::max<std::size_t>(1, params.chunk);
-  const std::size_t chunks = (n + chunk - 1) / chunk;
-  parallel_for(chunks, threads, [&](std::size_t ci, int) {
-    Scalar sh_buf[48];
-    GaussianParams<Scalar> g;
-    SplatGrad<Scalar> vg;
-    const std::size_t end = std::min(n, (ci + 1) * chunk);
-    for (std::size_t i = ci * chunk; i < end; ++i) {
-      Scalar* v_mean = freeze.means ? nullptr : &out.means[3 * i];
-      Scalar* v_quat = freeze.rotations ? nullptr : &out.rotations[4 * i];
-      Scalar* v_scale = freeze.scales ? nullptr : &out.log_scales[3 * i];
-      Scalar* v_logit = freeze.opacities ? nullptr : &out.opacity_logits[i];
-      Scalar* v_sh = &out.sh[3 * std::size_t(k_count) * i];
-      if (fwd.radius[i] <= 0) {
-        if (v_mean) v_mean[0] = v_mean[1] = v_mean[2] = Scalar(0);
-        if (v_quat) v_quat[0] = v_quat[1] = v_quat[2] = v_quat[3] = Scalar(0);
-        if (v_scale) v_scale[0] = v_scale[1] = v_scale[2] = Scalar(0);
-        if (v_logit) *v_logit = Scalar(0);
-        if (!freeze.sh_dc) v_sh[0] = v_sh[1] = v_sh[2] = Scalar(0);
-        if (!freeze.sh_rest)
-          for (int j = 3; j < 3 * k_count; ++j) v_sh[j] = Scalar(0);
-        out.screen_grad_norm[i] = out.screen_grad_ndc_norm[i] = Scalar(0);
-        continue;
-      }
-      detail::gather_gaussian(scene, i, degree, g, sh_buf);
-      vg.v_mean_x = v_in.v_mean_x[i];
-      vg.v_mean_y = v_in.v_mean_y[i];
-      vg.v_conic_a = v_in.v_conic_a[i];
-      vg.v_conic_b = v_in.v_conic_b[i];
-      vg.v_conic_c = v_in.v_conic_c[i];
-      vg.v_opacity = v_in.v_opacity[i];
-      vg.v_color[0] = v_in.v_color_r[i];
-      vg.v_color[1] = v_in.v_color_g[i];
-      vg.v_color[2] = v_in.v_color_b[i];
-      vg.v_depth = v_in.v_depth[i];
-      project_gaussian_vjp(cam, g, vg, freeze, v_mean, v_quat, v_scale, v_logit, v_sh);
-      if (Scene::scale_mode == ScaleMode::log && v_scale)
-        for (int a = 0; a < 3; ++a) v_scale[a] *= g.scale[a];  // d exp(l) / dl = exp(l)
-      out.screen_grad_norm[i] = std::sqrt(vg.v_mean_x * vg.v_mean_x + vg.v_mean_y * vg.v_mean_y);
-      const Scalar nx = vg.v_mean_x * half_w, ny = vg.v_mean_y * half_h;
-      out.screen_grad_ndc_norm[i] = std::sqrt(nx * nx + ny * ny);
-    }
-  });
+  const std::ptrdiff_t s1 = sizeof(Scalar);
+  SceneGradView<Scalar> view;
+  view.size = n;
+  if (!freeze.means) view.means = strided(out.means.data(), 3 * s1);
+  if (!freeze.rotations) view.rotations = strided(out.rotations.data(), 4 * s1);
+  if (!freeze.scales)
+    (Scene::scale_mode == ScaleMode::log ? view.log_scales : view.scales) = strided(out.log_scales.data(), 3 * s1);
+  if (!freeze.opacities) view.opacity_logits = strided(out.opacity_logits.data(), s1);
+  if (!(freeze.sh_dc && freeze.sh_rest))
+    view.sh = strided(out.sh.data(), std::ptrdiff_t(sh_size / std::max<std::size_t>(1, n)) * s1);
+  view.screen_grad_norm = strided(out.screen_grad_norm.data(), s1);
+  view.screen_grad_ndc_norm = strided(out.screen_grad_ndc_norm.data(), s1);
+  detail::project_scene_vjp_into(scene, camera, params, fwd, v_in, view, freeze, threads);
 }
 
 }  // namespace orbitforge

@@ -6,6 +6,7 @@
 //   Renderer<float> r(params);
 //   const RenderOutput<float>& img = r.render(SceneView<float>(scene), camera);
 //   const GaussianSceneGrad<float>& g = r.backward(SceneView<float>(scene), camera, v_color);
+//   r.backward(host_adaptor, camera, v_color, host_grad_view);  // into the host's arrays
 //
 // A Renderer owns every buffer of a frame and reuses them, so rendering frames of
 // one size allocates nothing after the first. backward() differentiates the last
@@ -124,7 +125,6 @@ class Renderer {
   const RenderOutput<Scalar>& render(const Scene& scene, const Camera<Scalar>& camera) {
     static_assert(check_scene_adaptor<Scene>(), "Renderer::render: Scene is not a scene adaptor");
     static_assert(std::is_same<typename Scene::scalar_type, Scalar>::value, "Renderer: scene of the wrong precision");
-    using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
     const int threads = resolve_threads(params_.threads, "RenderParams::threads");
     const int width = camera.intrinsics.width, height = camera.intrinsics.height;
@@ -176,24 +176,24 @@ class Renderer {
                                             const detail::identity_t<Image<Scalar>>* v_depth = nullptr,
                                             const Freeze& freeze = {}) {
     static_assert(check_scene_adaptor<Scene>(), "Renderer::backward: Scene is not a scene adaptor");
-    ensure(rendered_, "Renderer::backward: call render() first");
-    ensure(scene.size() == scene_size_, "Renderer::backward: scene has ", scene.size(),
-           " Gaussians, the last render had ", scene_size_);
-    ensure(camera.R == camera_.R && camera.t == camera_.t && camera.intrinsics.fx == camera_.intrinsics.fx &&
-               camera.intrinsics.width == camera_.intrinsics.width &&
-               camera.intrinsics.height == camera_.intrinsics.height,
-           "Renderer::backward: camera differs from the last render()");
-    using clock = std::chrono::steady_clock;
-    const auto t0 = clock::now();
-    const int threads = resolve_threads(params_.threads, "RenderParams::threads");
-    rasterize_backward(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
-                       v_alpha, v_depth, splats_.size(), raster_grad_, ws_);
+    const int threads = backward_raster(scene, camera, v_color, v_alpha, v_depth);
     const auto t1 = clock::now();
     project_scene_vjp(scene, camera, projection_params(), splats_, raster_grad_.splats, grad_, freeze, threads);
-    const auto t2 = clock::now();
-    out_.frame.backward_raster_ms = ms(t0, t1);
-    out_.frame.backward_project_ms = ms(t1, t2);
+    out_.frame.backward_project_ms = ms(t1, clock::now());
     return grad_;
+  }
+
+  // The same, written into the caller's own arrays in the parametrisation `out`
+  // asks for (splat/scene_grad_view.hpp); gradients() is left as it was.
+  template <class Scene>
+  void backward(const Scene& scene, const Camera<Scalar>& camera, const Image<Scalar>& v_color,
+                const SceneGradView<Scalar>& out, const detail::identity_t<Image<Scalar>>* v_alpha = nullptr,
+                const detail::identity_t<Image<Scalar>>* v_depth = nullptr) {
+    static_assert(check_scene_adaptor<Scene>(), "Renderer::backward: Scene is not a scene adaptor");
+    const int threads = backward_raster(scene, camera, v_color, v_alpha, v_depth);
+    const auto t1 = clock::now();
+    project_scene_vjp(scene, camera, projection_params(), splats_, raster_grad_.splats, out, threads);
+    out_.frame.backward_project_ms = ms(t1, clock::now());
   }
 
   const RenderOutput<Scalar>& output() const { return out_; }
@@ -204,6 +204,28 @@ class Renderer {
   const BinWorkspace<Scalar>& bins() const { return bins_; }
 
  private:
+  using clock = std::chrono::steady_clock;
+
+  // Checks that backward() follows a render() of this scene and camera, runs the
+  // rasterizer's backward pass and returns the thread count.
+  template <class Scene>
+  int backward_raster(const Scene& scene, const Camera<Scalar>& camera, const Image<Scalar>& v_color,
+                      const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth) {
+    ensure(rendered_, "Renderer::backward: call render() first");
+    ensure(scene.size() == scene_size_, "Renderer::backward: scene has ", scene.size(),
+           " Gaussians, the last render had ", scene_size_);
+    ensure(camera.R == camera_.R && camera.t == camera_.t && camera.intrinsics.fx == camera_.intrinsics.fx &&
+               camera.intrinsics.width == camera_.intrinsics.width &&
+               camera.intrinsics.height == camera_.intrinsics.height,
+           "Renderer::backward: camera differs from the last render()");
+    const auto t0 = clock::now();
+    const int threads = resolve_threads(params_.threads, "RenderParams::threads");
+    rasterize_backward(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
+                       v_alpha, v_depth, splats_.size(), raster_grad_, ws_);
+    out_.frame.backward_raster_ms = ms(t0, clock::now());
+    return threads;
+  }
+
   ProjectionParams projection_params() const {
     ProjectionParams pp;
     pp.near_plane = params_.near_plane;
