@@ -27,8 +27,8 @@
 // moments and steps, RNG and frame-order state, densification statistics and the
 // field with its optimizer; resuming with the same frames, params and thread count
 // continues exactly as an uninterrupted run. Written atomically (temp + rename);
-// checkpoint files end in a checksum (binary_io::append_checksum) and a damaged
-// or truncated one is refused whole.
+// the file format is io/checkpoint.hpp's (checkpoint() / restore() give the
+// record itself); a damaged or truncated file is refused whole.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -48,9 +48,8 @@
 #include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/deform/deformation_field.hpp"
-#include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/nn/adam.hpp"
-#include "orbitforge/nn/binary_io.hpp"
 #include "orbitforge/splat/gaussians.hpp"
 #include "orbitforge/splat/project.hpp"
 #include "orbitforge/splat/renderer.hpp"
@@ -370,135 +369,85 @@ class Trainer {
   }
 
   // ------------------------------------------------------------------ checkpoints
-  void save_checkpoint(std::ostream& os) const {
-    binary_io::write_tag(os, kTag, sizeof(Scalar));
-    binary_io::write<std::int32_t>(os, iteration_);
-    binary_io::write<std::int32_t>(os, params_.iterations);
-    binary_io::write<std::uint64_t>(os, frames_.size());
-    binary_io::write<std::uint32_t>(os, params_.seed);
-    binary_io::write<std::uint8_t>(os, params_.deformable ? 1 : 0);
-    binary_io::write(os, extent_);
-    binary_io::write(os, elapsed_);
-    binary_io::write<std::int32_t>(os, scene_.sh_degree);
-    binary_io::write_array(os, scene_.means.data(), scene_.means.size());
-    binary_io::write_array(os, scene_.rotations.data(), scene_.rotations.size());
-    binary_io::write_array(os, scene_.log_scales.data(), scene_.log_scales.size());
-    binary_io::write_array(os, scene_.opacity_logits.data(), scene_.opacity_logits.size());
-    binary_io::write_array(os, scene_.sh.data(), scene_.sh.size());
-    adam_.save(os);
+  // The whole training state as a record of io/checkpoint.hpp's format.
+  TrainingCheckpoint<Scalar> checkpoint() const {
+    TrainingCheckpoint<Scalar> c;
+    c.iteration = iteration_;
+    c.budget = params_.iterations;
+    c.frame_count = frames_.size();
+    c.seed = params_.seed;
+    c.deformable = params_.deformable;
+    c.extent = extent_;
+    c.elapsed_s = elapsed_;
+    c.scene = scene_;
+    c.adam = adam_;
     std::ostringstream rs;
     rs << rng_;
-    binary_io::write_string(os, rs.str());
-    binary_io::write_array(os, order_.data(), order_.size());
-    binary_io::write<std::uint64_t>(os, cursor_);
-    binary_io::write_array(os, stats_.grad_sum.data(), stats_.grad_sum.size());
-    binary_io::write_array(os, stats_.count.data(), stats_.count.size());
-    binary_io::write_array(os, stats_.max_radius.data(), stats_.max_radius.size());
+    c.rng_state = rs.str();
+    c.order = order_;
+    c.cursor = cursor_;
+    c.densify_grad_sum = stats_.grad_sum;
+    c.densify_count = stats_.count;
+    c.densify_max_radius = stats_.max_radius;
     if (field_) {
-      field_->save(os);
-      field_adam_.save(os);
+      c.field = std::make_unique<DeformationField<Scalar>>(*field_);
+      c.field_adam = field_adam_;
     }
-    ensure(bool(os), "Trainer::save_checkpoint: write failed");
+    return c;
   }
+  void save_checkpoint(std::ostream& os) const { write_checkpoint(os, checkpoint()); }
+  void save_checkpoint(const std::string& path) const { write_checkpoint_file(path, checkpoint()); }
 
-  // The file form: the stream form plus a checksum trailer.
-  void save_checkpoint(const std::string& path) const {
-    std::ostringstream os(std::ios::binary);
-    save_checkpoint(os);
-    std::string bytes = os.str();
-    binary_io::append_checksum(bytes);
-    write_file_atomic(path, bytes);
-  }
-
-  // Replaces the training state with the checkpoint's. The trainer must have been
-  // built with the same frames and params (checked: budget, frame count, seed, mode).
-  void load_checkpoint(std::istream& is) {
-    binary_io::read_tag(is, kTag, sizeof(Scalar));
-    const int it = binary_io::read<std::int32_t>(is, "iteration");
-    const int budget = binary_io::read<std::int32_t>(is, "iteration budget");
-    const auto nframes = binary_io::read<std::uint64_t>(is, "frame count");
-    const auto seed = binary_io::read<std::uint32_t>(is, "seed");
-    const bool deformable = binary_io::read<std::uint8_t>(is, "mode") != 0;
-    ensure(budget == params_.iterations, "checkpoint: trained for a budget of ", budget,
+  // Replaces the training state with the record's. The trainer must have been
+  // built with the same frames and params (checked: budget, frame count, seed,
+  // mode, SH degree, optimizer layout); nothing changes when a check fails.
+  void restore(TrainingCheckpoint<Scalar> c) {
+    ensure(c.budget == params_.iterations, "checkpoint: trained for a budget of ", c.budget,
            " iterations, this trainer has ", params_.iterations, " (schedules would differ)");
-    ensure(nframes == frames_.size(), "checkpoint: made with ", nframes, " frames, this trainer has ",
+    ensure(c.frame_count == frames_.size(), "checkpoint: made with ", c.frame_count, " frames, this trainer has ",
            frames_.size());
-    ensure(seed == params_.seed, "checkpoint: seed ", seed, " differs from this trainer's ", params_.seed);
-    ensure(deformable == params_.deformable, "checkpoint: ", deformable ? "deformable" : "static",
+    ensure(c.seed == params_.seed, "checkpoint: seed ", c.seed, " differs from this trainer's ", params_.seed);
+    ensure(c.deformable == params_.deformable, "checkpoint: ", c.deformable ? "deformable" : "static",
            " model, this trainer is ", params_.deformable ? "deformable" : "static");
-    ensure(it >= 0 && it <= budget, "checkpoint: iteration ", it, " outside the budget ", budget);
-    const Scalar extent = binary_io::read<Scalar>(is, "extent");
-    const double elapsed = binary_io::read<double>(is, "elapsed");
-    GaussianScene<Scalar> s;
-    s.sh_degree = binary_io::read<std::int32_t>(is, "SH degree");
-    ensure(s.sh_degree >= 0 && s.sh_degree <= params_.max_sh_degree, "checkpoint: SH degree ", s.sh_degree,
-           " outside 0..", params_.max_sh_degree);
-    s.means = binary_io::read_array<Scalar>(is, "means");
-    s.rotations = binary_io::read_array<Scalar>(is, "rotations");
-    s.log_scales = binary_io::read_array<Scalar>(is, "log_scales");
-    s.opacity_logits = binary_io::read_array<Scalar>(is, "opacity_logits");
-    s.sh = binary_io::read_array<Scalar>(is, "sh");
-    s.check_consistent();
-    Adam<Scalar> adam(params_.adam);
-    adam.load(is);
-    ensure(adam.group_count() == 6, "checkpoint: optimizer has ", adam.group_count(), " groups, expected 6");
-    for (int g = 0; g < 6; ++g)
-      ensure(adam.group(g).rows == s.size(), "checkpoint: optimizer group '", adam.group(g).name, "' has ",
-             adam.group(g).rows, " rows for ", s.size(), " Gaussians");
-    ensure(adam.group(g_rest_).row_width == rest_width(), "checkpoint: SH rest moments have the wrong width");
+    ensure(c.scene.sh_degree >= 0 && c.scene.sh_degree <= params_.max_sh_degree, "checkpoint: SH degree ",
+           c.scene.sh_degree, " outside 0..", params_.max_sh_degree);
+    ensure(c.adam.group(g_rest_).row_width == rest_width(), "checkpoint: SH rest moments have the wrong width");
+    ensure(c.order.size() == order_.size(), "checkpoint: a frame order of ", c.order.size(),
+           " draws, this trainer's has ", order_.size());
     std::mt19937 rng;
-    {
-      std::istringstream rs(binary_io::read_string(is, "rng state"));
-      rs >> rng;
-      ensure(!rs.fail(), "checkpoint: unreadable random generator state");
-    }
-    auto order = binary_io::read_array<std::size_t>(is, "frame order");
-    const auto cursor = binary_io::read<std::uint64_t>(is, "frame cursor");
-    ensure(order.size() == order_.size() && cursor <= order.size(), "checkpoint: inconsistent frame order");
-    for (auto o : order) ensure(o < frames_.size(), "checkpoint: frame index ", o, " out of range");
-    DensifyStats<Scalar> stats;
-    stats.grad_sum = binary_io::read_array<double>(is, "densify grad_sum");
-    stats.count = binary_io::read_array<std::uint32_t>(is, "densify count");
-    stats.max_radius = binary_io::read_array<Scalar>(is, "densify max_radius");
-    ensure(stats.grad_sum.size() == s.size() && stats.count.size() == s.size() && stats.max_radius.size() == s.size(),
-           "checkpoint: densification statistics do not match the scene");
-    std::unique_ptr<DeformationField<Scalar>> field;
-    Adam<Scalar> field_adam(params_.adam);
-    if (deformable) {
-      field = std::make_unique<DeformationField<Scalar>>(DeformationField<Scalar>::load(is));
-      field_adam.load(is);
-      ensure(field_adam.group_count() == 1 && field_adam.group(0).rows == field->parameter_count(),
-             "checkpoint: deformation optimizer does not match the network");
-    }
-    // Everything read: commit.
-    iteration_ = it;
-    extent_ = extent;
-    elapsed_ = elapsed;
-    scene_ = std::move(s);
-    adam_ = std::move(adam);
+    std::istringstream rs(c.rng_state);
+    rs >> rng;
+    ensure(!rs.fail(), "checkpoint: unreadable random generator state");
+    // Everything checked: commit.
+    iteration_ = c.iteration;
+    extent_ = c.extent;
+    elapsed_ = c.elapsed_s;
+    scene_ = std::move(c.scene);
+    adam_ = std::move(c.adam);
     rng_ = rng;
-    order_ = std::move(order);
-    cursor_ = std::size_t(cursor);
-    stats_ = std::move(stats);
-    if (deformable) {
-      field_ = std::move(field);
-      field_adam_ = std::move(field_adam);
+    order_ = std::move(c.order);
+    cursor_ = std::size_t(c.cursor);
+    stats_.grad_sum = std::move(c.densify_grad_sum);
+    stats_.count = std::move(c.densify_count);
+    stats_.max_radius = std::move(c.densify_max_radius);
+    if (c.deformable) {
+      field_ = std::move(c.field);
+      field_adam_ = std::move(c.field_adam);
     }
   }
-
+  void load_checkpoint(std::istream& is) { restore(read_checkpoint<Scalar>(is, params_.adam)); }
   // Refuses a file whose checksum does not match before reading any of it.
   void load_checkpoint(const std::string& path) {
-    const std::string bytes = read_file_bytes(path);
     try {
-      std::istringstream is(binary_io::checked_payload(bytes), std::ios::binary);
-      load_checkpoint(is);
+      restore(read_checkpoint_file<Scalar>(path, params_.adam));
     } catch (const Error& e) {
-      fail(path, ": ", e.what());
+      const std::string what = e.what();
+      if (what.compare(0, path.size(), path) == 0) throw;
+      fail(path, ": ", what);
     }
   }
 
  private:
-  static constexpr char kTag[9] = "OFTRAIN1";
 
   int rest_width() const { return std::max(1, 3 * (sh_coefficient_count(params_.max_sh_degree) - 1)); }
   bool white_background() const {
