@@ -30,6 +30,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/endian.hpp"
 
 #if defined(__GNUC__)
 #pragma GCC diagnostic push
@@ -78,13 +79,6 @@
 namespace orbitforge {
 
 namespace image_io_detail {
-
-inline bool host_is_little_endian() {
-  const std::uint16_t one = 1;
-  unsigned char b;
-  std::memcpy(&b, &one, 1);
-  return b == 1;
-}
 
 inline std::string lower_extension(const std::string& path) {
   const auto slash = path.find_last_of("/\\");
@@ -157,7 +151,7 @@ Image<T> decode_pfm(const std::string& bytes, const std::string& name) {
   const std::uint64_t need = std::uint64_t(w) * std::uint64_t(h) * std::uint64_t(channels) * 4;
   ensure(bytes.size() - pos >= need, name, ": PFM truncated: ", w, "x", h, "x", channels, " needs ", need,
          " bytes of data after the header (byte offset ", pos, "), found ", bytes.size() - pos);
-  const bool swap = little != image_io_detail::host_is_little_endian();
+  const bool swap = little != host_is_little_endian();
   Image<T> img(w, h, channels);
   const auto* data = reinterpret_cast<const unsigned char*>(bytes.data() + pos);
   const std::size_t row = std::size_t(w) * std::size_t(channels);
@@ -194,7 +188,7 @@ std::string pfm_bytes(const Image<T>& img) {
   const std::size_t row = std::size_t(img.width) * std::size_t(img.channels);
   out.resize(header + row * std::size_t(img.height) * 4);
   auto* data = reinterpret_cast<unsigned char*>(&out[header]);
-  const bool swap = !image_io_detail::host_is_little_endian();
+  const bool swap = !host_is_little_endian();
   for (int y = 0; y < img.height; ++y) {
     const T* src = img.data.data() + std::size_t(img.height - 1 - y) * row;
     unsigned char* dst = data + std::size_t(y) * row * 4;

@@ -48,6 +48,7 @@
 
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/endian.hpp"
 #include "orbitforge/splat/gaussians.hpp"
 
 namespace orbitforge {
@@ -139,13 +140,6 @@ inline bool parse_u64(const std::string& s, std::uint64_t& v) {
   if (s.empty() || s[0] == '-' || s[0] == '+') return false;
   const auto r = std::from_chars(s.data(), s.data() + s.size(), v);
   return r.ec == std::errc() && r.ptr == s.data() + s.size();
-}
-
-inline bool host_is_little_endian() {
-  const std::uint16_t one = 1;
-  unsigned char b;
-  std::memcpy(&b, &one, 1);
-  return b == 1;
 }
 
 // Reads one binary value of type t at p (bounds checked by the caller).
@@ -516,7 +510,7 @@ std::string ply_bytes(const GaussianScene<Scalar>& scene) {
   std::string out = header;
   out.resize(header.size() + n * floats * 4);
   auto* w = reinterpret_cast<unsigned char*>(&out[header.size()]);
-  const bool swap = !ply_detail::host_is_little_endian();
+  const bool swap = !host_is_little_endian();
   auto emit = [&](Scalar v) {
     ply_detail::store_float_le(float(v), w, swap);
     w += 4;

@@ -27,6 +27,7 @@
 
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/io/atomic_file.hpp"
+#include "orbitforge/io/endian.hpp"
 #include "orbitforge/splat/gaussians.hpp"
 
 namespace orbitforge {
@@ -34,13 +35,6 @@ namespace orbitforge {
 inline constexpr std::size_t splat_record_bytes = 32;
 
 namespace splat_detail {
-
-inline bool host_is_little_endian() {
-  const std::uint16_t one = 1;
-  unsigned char b;
-  std::memcpy(&b, &one, 1);
-  return b == 1;
-}
 
 inline float load_f32_le(const unsigned char* p) {
   unsigned char b[4] = {p[0], p[1], p[2], p[3]};
