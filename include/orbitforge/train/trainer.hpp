@@ -439,13 +439,21 @@ class Trainer {
     s.opacity_logits = binary_io::read_array<Scalar>(is, "opacity_logits");
     s.sh = binary_io::read_array<Scalar>(is, "sh");
     s.check_consistent();
+    ensure(std::isfinite(double(extent)) && extent > Scalar(0) && std::isfinite(elapsed) && elapsed >= 0,
+           "checkpoint: scene extent ", extent, " or elapsed time ", elapsed, " is not a finite positive number");
+    for (const auto* v : {&s.means, &s.rotations, &s.log_scales, &s.opacity_logits, &s.sh})
+      ensure(std::all_of(v->begin(), v->end(), [](Scalar x) { return std::isfinite(double(x)); }),
+             "checkpoint: the scene holds non-finite values");
     Adam<Scalar> adam(params_.adam);
     adam.load(is);
     ensure(adam.group_count() == 6, "checkpoint: optimizer has ", adam.group_count(), " groups, expected 6");
     for (int g = 0; g < 6; ++g)
       ensure(adam.group(g).rows == s.size(), "checkpoint: optimizer group '", adam.group(g).name, "' has ",
              adam.group(g).rows, " rows for ", s.size(), " Gaussians");
-    ensure(adam.group(g_rest_).row_width == rest_width(), "checkpoint: SH rest moments have the wrong width");
+    for (int g = 0; g < 6; ++g)
+      ensure(adam.group(g).row_width == adam_.group(g).row_width, "checkpoint: optimizer group '",
+             adam.group(g).name, "' has rows of ", adam.group(g).row_width, " values, its parameters ",
+             adam_.group(g).row_width);
     std::mt19937 rng;
     {
       std::istringstream rs(binary_io::read_string(is, "rng state"));
