@@ -1,6 +1,8 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <random>
 #include <sstream>
 #include <vector>
@@ -182,6 +184,26 @@ TEST_CASE("deformation field: save/load round trip; float and double agree", "[d
   CHECK(ol.dq == od.dq);
   std::stringstream bad(ss.str().substr(0, 30));
   CHECK_THROWS_AS(DeformationField<double>::load(bad), Error);
+  // A damaged size is refused before the network is built (seen while writing
+  // fuzz/fuzz_checkpoint): a 1000 x 65536 network was allocated (std::bad_alloc),
+  // 2^30 frequencies overflowed the input width. Layout: tag 12 bytes, then
+  // depth, width, skip layer, x and t frequencies (int32).
+  auto patched = [&ss](std::size_t at, std::int32_t v) {
+    std::string b = ss.str();
+    std::memcpy(&b[at], &v, 4);
+    return std::stringstream(b);
+  };
+  for (auto [at, v] : {std::pair<std::size_t, std::int32_t>{12, 1000}, {16, 65536}, {24, 1 << 30}, {28, -1}}) {
+    INFO("int32 at " << at << " = " << v);
+    auto damaged = patched(at, v);
+    if (at == 12) {  // deep and wide
+      std::string b = damaged.str();
+      const std::int32_t w = 65536;
+      std::memcpy(&b[16], &w, 4);
+      damaged = std::stringstream(b);
+    }
+    CHECK_THROWS_AS(DeformationField<double>::load(damaged), Error);
+  }
 }
 
 TEST_CASE("deformation field: vjp matches central differences end to end", "[deform]") {

@@ -5,7 +5,9 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <limits>
 #include <random>
 #include <sstream>
 
@@ -355,4 +357,85 @@ TEST_CASE("checkpoint files: damaged, truncated or extended files are refused by
     CHECK(r.iteration() == 0);
   }
   std::filesystem::remove(path);
+}
+
+// Checkpoint streams carry no checksum, and a file's checksum only says the bytes
+// are the ones written: the structure is checked on its own. Each case below was
+// accepted (or crashed) before and is refused now (fuzz/fuzz_checkpoint, which
+// re-appends a valid checksum to mutated bodies, found the first and the last; the
+// others came from writing its invariants): non-finite scene values
+// or extent, an optimizer group whose rows have another width than its parameters
+// (sh_dc rows of 1 value: the SH step wrote past the moments), Adam settings its
+// constructor refuses (beta1 = 1: division by zero in the bias correction), and a
+// damaged array length (2^35 values were allocated before the data was read).
+TEST_CASE("checkpoint streams: damaged structure is refused, not loaded", "[train][trainer][checkpoint]") {
+  using S = float;
+  const auto frames = tiny_frames<S>(3, 16);
+  const auto init = tiny_init(frames, 20);
+  Trainer<S> t(frames, init, tiny_params(10));
+  t.train(2);
+  std::ostringstream os(std::ios::binary);
+  t.save_checkpoint(os);
+  const std::string good = os.str();
+  // Layout (trainer.hpp save_checkpoint): tag 8 + scalar size 4, iteration 4, budget 4,
+  // frames 8, seed 4, mode 1, extent, elapsed 8, SH degree 4, then the scene's arrays
+  // (u64 count + values) and the optimizer.
+  const std::size_t extent_at = 12 + 4 + 4 + 8 + 4 + 1, means_at = extent_at + sizeof(S) + 8 + 4;
+  const GaussianScene<S>& s = t.scene();
+  std::size_t adam_at = means_at;
+  for (std::size_t count : {s.means.size(), s.rotations.size(), s.log_scales.size(), s.opacity_logits.size(),
+                            s.sh.size()})
+    adam_at += 8 + count * sizeof(S);
+  REQUIRE(good.compare(adam_at, 8, "OFADAM01") == 0);
+  auto patched = [&good](std::size_t at, const auto& value) {
+    std::string b = good;
+    std::memcpy(&b[at], &value, sizeof(value));
+    return b;
+  };
+  // The optimizer re-encoded with the 'sh_dc' group's rows 1 value wide.
+  std::string narrow_dc;
+  {
+    std::istringstream is(good.substr(adam_at), std::ios::binary);
+    Adam<S> a;
+    a.load(is);
+    const std::string rest = good.substr(adam_at + std::size_t(is.tellg()));
+    Adam<S> b(a.params());
+    for (int g = 0; g < a.group_count(); ++g)
+      b.add_group(a.group(g).name, a.group(g).rows, a.group(g).name == "sh_dc" ? 1 : a.group(g).row_width,
+                  a.group(g).lr);
+    std::ostringstream ob(std::ios::binary);
+    b.save(ob);
+    narrow_dc = good.substr(0, adam_at) + ob.str() + rest;
+  }
+  {
+    Trainer<S> r(frames, init, tiny_params(10));
+    std::istringstream is(good, std::ios::binary);
+    r.load_checkpoint(is);
+    CHECK(r.iteration() == 2);
+  }
+  struct Damage {
+    const char* name;
+    std::string bytes;
+    const char* expect;
+  };
+  const std::vector<Damage> cases = {
+      {"NaN mean", patched(means_at + 8, std::numeric_limits<S>::quiet_NaN()), "non-finite"},
+      {"infinite extent", patched(extent_at, std::numeric_limits<S>::infinity()), "extent"},
+      {"sh_dc rows 1 wide", narrow_dc, "'sh_dc' has rows of 1 values"},
+      {"Adam beta1 = 1", patched(adam_at + 12, 1.0), "beta"},
+      {"2^35 means", patched(means_at, std::uint64_t(1) << 35), "truncated"},
+  };
+  for (const auto& d : cases) {
+    INFO(d.name);
+    Trainer<S> r(frames, init, tiny_params(10));
+    std::istringstream is(d.bytes, std::ios::binary);
+    try {
+      r.load_checkpoint(is);
+      FAIL("a damaged checkpoint stream was loaded");
+    } catch (const Error& e) {
+      INFO(e.what());
+      CHECK(std::string(e.what()).find(d.expect) != std::string::npos);
+    }
+    CHECK(r.iteration() == 0);
+  }
 }

@@ -39,6 +39,7 @@
 // enabling the field after the warm-up then barely moves the scene. 1 gives
 // PyTorch's init.
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <istream>
@@ -242,13 +243,26 @@ class DeformationField {
            "DeformationField::load: unknown scale offset mode ", mode);
     p.scale_offset = ScaleOffset(mode);
     p.head_init_scale = binary_io::read<double>(is, "deformation head scale");
-    DeformationField f(p);
+    ensure(p.depth >= 1 && p.depth <= 1024 && p.width >= 1 && p.width <= 65536 && p.x_frequencies >= 0 &&
+               p.x_frequencies <= 64 && p.t_frequencies >= 0 && p.t_frequencies <= 64,
+           "DeformationField::load: implausible network (depth ", p.depth, ", width ", p.width, ", frequencies ",
+           p.x_frequencies, " and ", p.t_frequencies, ")");
     Eigen::Matrix<Scalar, 3, 1> c;
     for (int k = 0; k < 3; ++k) c[k] = binary_io::read<Scalar>(is, "deformation frame centre");
-    f.set_frame(c, binary_io::read<Scalar>(is, "deformation frame unit"));
+    const Scalar unit = binary_io::read<Scalar>(is, "deformation frame unit");
     auto w = binary_io::read_array<Scalar>(is, "deformation parameters");
+    // The network is built (and its parameters allocated) only when the stored ones
+    // can fill it: its hidden layers alone hold width x (depth + width x (depth - 1)).
+    const std::uint64_t least =
+        std::uint64_t(p.width) * (std::uint64_t(p.depth) + std::uint64_t(p.width) * std::uint64_t(p.depth - 1));
+    ensure(w.size() >= least, "DeformationField::load: ", w.size(), " parameters stored, a ", p.depth, "x", p.width,
+           " network has more");
+    DeformationField f(p);
+    f.set_frame(c, unit);
     ensure(w.size() == f.parameter_count(), "DeformationField::load: ", w.size(), " parameters stored, the ",
            p.depth, "x", p.width, " network has ", f.parameter_count());
+    ensure(std::all_of(w.begin(), w.end(), [](Scalar x) { return std::isfinite(double(x)); }),
+           "DeformationField::load: non-finite parameters");
     f.parameters() = std::move(w);
     return f;
   }

@@ -18,6 +18,8 @@
 // read_checkpoint checks the record's own consistency (sizes agree with the
 // scene, the order indexes a cursor inside it); whether it fits a given trainer
 // (budget, frames, seed, network) is the trainer's check.
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <istream>
 #include <memory>
@@ -116,6 +118,11 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
   s.opacity_logits = read_array<Scalar>(is, "opacity_logits");
   s.sh = read_array<Scalar>(is, "sh");
   s.check_consistent();
+  ensure(std::isfinite(double(c.extent)) && c.extent > Scalar(0) && std::isfinite(c.elapsed_s) && c.elapsed_s >= 0,
+         "checkpoint: scene extent ", c.extent, " or elapsed time ", c.elapsed_s, " is not a finite positive number");
+  for (const auto* v : {&s.means, &s.rotations, &s.log_scales, &s.opacity_logits, &s.sh})
+    ensure(std::all_of(v->begin(), v->end(), [](Scalar x) { return std::isfinite(double(x)); }),
+           "checkpoint: the scene holds non-finite values");
   c.adam = Adam<Scalar>(adam_params);
   c.adam.load(is);
   ensure(c.adam.group_count() == 6, "checkpoint: optimizer has ", c.adam.group_count(), " groups, expected 6");

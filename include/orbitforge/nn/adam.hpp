@@ -243,6 +243,9 @@ class Adam {
     p.beta1 = binary_io::read<double>(is, "Adam beta1");
     p.beta2 = binary_io::read<double>(is, "Adam beta2");
     p.eps = binary_io::read<double>(is, "Adam eps");
+    ensure(p.beta1 >= 0 && p.beta1 < 1 && p.beta2 >= 0 && p.beta2 < 1 && p.eps >= 0 && std::isfinite(p.eps),
+           "Adam::load: need 0 <= beta < 1 and a finite eps >= 0, got beta1 ", p.beta1, ", beta2 ", p.beta2,
+           ", eps ", p.eps);
     const auto count = binary_io::read<std::uint64_t>(is, "Adam group count");
     ensure(count < (1u << 20), "Adam::load: implausible group count ", count);
     std::vector<Group> groups;
@@ -255,8 +258,13 @@ class Adam {
       g.step = binary_io::read<std::int64_t>(is, "Adam group step");
       g.m = binary_io::read_array<Scalar>(is, "Adam first moments");
       g.v = binary_io::read_array<Scalar>(is, "Adam second moments");
-      ensure(g.row_width >= 1 && g.m.size() == g.size() && g.v.size() == g.size(), "Adam::load: group '", g.name,
-             "' (", i, ") has inconsistent sizes");
+      ensure(g.row_width >= 1 && g.m.size() % std::size_t(g.row_width) == 0 &&
+                 g.m.size() / std::size_t(g.row_width) == g.rows && g.v.size() == g.m.size(),
+             "Adam::load: group '", g.name, "' (", i, ") has inconsistent sizes");
+      ensure(std::isfinite(double(g.lr)) && g.lr >= 0 && g.step >= 0 &&
+                 std::all_of(g.m.begin(), g.m.end(), [](Scalar x) { return std::isfinite(double(x)); }) &&
+                 std::all_of(g.v.begin(), g.v.end(), [](Scalar x) { return std::isfinite(double(x)) && x >= 0; }),
+             "Adam::load: group '", g.name, "' (", i, ") has a non-finite or negative learning rate, step or moment");
       groups.push_back(std::move(g));
     }
     p_ = p;

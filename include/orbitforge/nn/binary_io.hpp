@@ -1,6 +1,7 @@
 #pragma once
 // Minimal binary (de)serialisation helpers for checkpoints: native-endian PODs and
 // arrays, with a tagged header so that a wrong or truncated file fails loudly.
+#include <algorithm>
 #include <cstdint>
 #include <cstring>
 #include <istream>
@@ -41,9 +42,16 @@ template <class T>
 std::vector<T> read_array(std::istream& is, const char* what, std::uint64_t max_count = (std::uint64_t(1) << 36)) {
   const auto n = read<std::uint64_t>(is, what);
   ensure(n <= max_count, "binary_io: implausible length ", n, " for ", what);
-  std::vector<T> v(n);
-  if (n) is.read(reinterpret_cast<char*>(v.data()), std::streamsize(n * sizeof(T)));
-  ensure(bool(is), "binary_io: truncated stream while reading ", what);
+  // Grown as the data arrives (1 MiB at a time), so that a damaged length fails
+  // as a truncated stream instead of allocating up to 2^36 values up front.
+  constexpr std::uint64_t chunk = std::max<std::uint64_t>(1, (std::uint64_t(1) << 20) / sizeof(T));
+  std::vector<T> v;
+  while (v.size() < n) {
+    const std::size_t done = v.size(), k = std::size_t(std::min<std::uint64_t>(n - done, chunk));
+    v.resize(done + k);
+    is.read(reinterpret_cast<char*>(v.data() + done), std::streamsize(k * sizeof(T)));
+    ensure(bool(is), "binary_io: truncated stream while reading ", what);
+  }
   return v;
 }
 

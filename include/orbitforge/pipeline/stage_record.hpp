@@ -11,6 +11,7 @@
 // recorded size and content hash; otherwise the stage runs again and the reason
 // is reported. The record is written last, so a crash leaves either no record or
 // a record whose outputs are all complete.
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -36,6 +37,16 @@ inline fs::path record_path(const std::string& out, const std::string& stage) {
   return fs::path(out) / "stages" / (stage + ".json");
 }
 
+// A relative path that stays in the run folder: not empty, not absolute, no ".."
+// component (a name like "clip..v2.png" is fine) and no NUL (which would cut the
+// name short when the file is opened).
+inline bool inside_run_folder(const std::string& p) {
+  if (p.empty() || p.front() == '/' || p.find('\0') != std::string::npos) return false;
+  for (const auto& part : fs::path(p))
+    if (part == "..") return false;
+  return true;
+}
+
 inline nlohmann::json describe_output(const std::string& out, const std::string& relative) {
   const std::string bytes = read_file_bytes((fs::path(out) / relative).string());
   return {{"path", relative}, {"size", bytes.size()}, {"fnv1a", hex64(fnv1a(bytes))}};
@@ -57,8 +68,7 @@ inline nlohmann::json parse_stage_record(const std::string& text, const std::str
                o["size"].is_number_unsigned() && o.contains("fnv1a") && o["fnv1a"].is_string(),
            where, ": an output entry lacks path, size or fnv1a");
     const std::string p = o["path"].get<std::string>();
-    ensure(!p.empty() && p.find("..") == std::string::npos && p.front() != '/', where, ": output path '", p,
-           "' is not inside the run folder");
+    ensure(stage_record_detail::inside_run_folder(p), where, ": output path '", p, "' is not inside the run folder");
   }
   if (j.contains("seconds")) ensure(j["seconds"].is_number(), where, ": \"seconds\" is not a number");
   return j;
@@ -116,16 +126,28 @@ inline StageCheck check_stage(const std::string& out, const std::string& stage, 
   return c;
 }
 
-// Writes the record (after the outputs): key, wall seconds, settings and the size
-// and hash of every output.
+// Writes the record (after the outputs): key, wall seconds (when finite), settings
+// and the size and hash of every output. Error when a name or setting is not UTF-8.
 inline void record_stage(const std::string& out, const std::string& stage, const std::string& key, double seconds,
                          const nlohmann::json& settings, const std::vector<std::string>& outputs) {
   using namespace stage_record_detail;
   fs::create_directories(fs::path(out) / "stages");
   nlohmann::json list = nlohmann::json::array();
-  for (const auto& o : outputs) list.push_back(describe_output(out, o));
-  const nlohmann::json j = {{"key", key}, {"seconds", seconds}, {"settings", settings}, {"outputs", list}};
-  write_file_atomic(record_path(out, stage).string(), j.dump(1) + "\n");
+  for (const auto& o : outputs) {
+    ensure(inside_run_folder(o), record_path(out, stage).string(), ": output path '", o,
+           "' is not inside the run folder");
+    list.push_back(describe_output(out, o));
+  }
+  nlohmann::json j = {{"key", key}, {"settings", settings}, {"outputs", list}};
+  if (std::isfinite(seconds)) j["seconds"] = seconds;  // JSON has no NaN or infinity (dumped as null)
+  std::string text;
+  try {
+    text = j.dump(1) + "\n";
+  } catch (const nlohmann::json::type_error& e) {  // a string that is not UTF-8: JSON cannot hold it
+    fail(record_path(out, stage).string(), ": cannot record an output name or setting that is not UTF-8 text (",
+         e.what(), ")");
+  }
+  write_file_atomic(record_path(out, stage).string(), text);
 }
 
 inline double recorded_seconds(const std::string& out, const std::string& stage) {

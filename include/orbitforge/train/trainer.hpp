@@ -411,7 +411,12 @@ class Trainer {
            " model, this trainer is ", params_.deformable ? "deformable" : "static");
     ensure(c.scene.sh_degree >= 0 && c.scene.sh_degree <= params_.max_sh_degree, "checkpoint: SH degree ",
            c.scene.sh_degree, " outside 0..", params_.max_sh_degree);
-    ensure(c.adam.group(g_rest_).row_width == rest_width(), "checkpoint: SH rest moments have the wrong width");
+    // A group whose rows are narrower than its parameters' would let a step write
+    // past the end of its moments.
+    for (int g = 0; g < 6; ++g)
+      ensure(c.adam.group(g).row_width == adam_.group(g).row_width, "checkpoint: optimizer group '",
+             c.adam.group(g).name, "' has rows of ", c.adam.group(g).row_width, " values, its parameters ",
+             adam_.group(g).row_width);
     ensure(c.order.size() == order_.size(), "checkpoint: a frame order of ", c.order.size(),
            " draws, this trainer's has ", order_.size());
     std::mt19937 rng;
