@@ -37,6 +37,8 @@
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 
+#include "seed_dirs.hpp"
+
 namespace fs = std::filesystem;
 using namespace orbitforge;
 using S = float;
@@ -202,13 +204,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 // Seeds: a corpus folder named on the command line that is missing or empty
 // gets checkpoints of the trainers this target loads into.
 extern "C" int LLVMFuzzerInitialize(int* argc, char*** argv) {
-  std::vector<std::string> dirs;
-  for (int i = 1; i < *argc; ++i) {
-    const std::string arg = (*argv)[i];
-    if (arg.empty() || arg[0] == '-') continue;
-    std::error_code ec;
-    if (!fs::exists(arg, ec) || (fs::is_directory(arg, ec) && fs::is_empty(arg, ec))) dirs.push_back(arg);
-  }
+  const std::vector<std::string> dirs = empty_corpus_dirs(*argc, *argv);
   if (dirs.empty()) return 0;
   int k = 0;
   for (bool deformable : {false, true})

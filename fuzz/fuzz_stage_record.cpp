@@ -33,6 +33,8 @@
 
 #include "orbitforge/pipeline/stage_record.hpp"
 
+#include "seed_dirs.hpp"
+
 namespace fs = std::filesystem;
 using namespace orbitforge;
 
@@ -230,13 +232,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 // Seeds: a corpus folder named on the command line that is missing or empty
 // gets inputs whose record text record_stage wrote for those outputs.
 extern "C" int LLVMFuzzerInitialize(int* argc, char*** argv) {
-  std::vector<std::string> dirs;
-  for (int i = 1; i < *argc; ++i) {
-    const std::string arg = (*argv)[i];
-    if (arg.empty() || arg[0] == '-') continue;
-    std::error_code ec;
-    if (!fs::exists(arg, ec) || (fs::is_directory(arg, ec) && fs::is_empty(arg, ec))) dirs.push_back(arg);
-  }
+  const std::vector<std::string> dirs = empty_corpus_dirs(*argc, *argv);
   if (dirs.empty()) return 0;
   const std::string& out = run_dir();
   const std::vector<std::string> contents = {"", "hello", std::string(40, 'z')};

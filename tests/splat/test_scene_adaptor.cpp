@@ -89,6 +89,19 @@ void make_host_scene(std::mt19937& rng, std::vector<HostGaussian>& host, Gaussia
     scene.opacity_logits[i] = std::log(h.opacity / (1 - h.opacity));
   }
 }
+
+// A 64x48 camera at the origin looking down +z, and dL/d(colour) for it.
+Camera<double> host_camera() {
+  Camera<double> cam;
+  cam.intrinsics = {60, 60, 32, 24, 64, 48};
+  return cam;
+}
+Image<double> random_image(std::mt19937& rng) {
+  Image<double> v(64, 48, 3);
+  std::uniform_real_distribution<double> gv(-1, 1);
+  for (double& x : v.data) x = gv(rng);
+  return v;
+}
 }  // namespace
 
 TEST_CASE("an array-of-structs double adaptor renders and differentiates like the library's scene",
@@ -97,8 +110,7 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
   std::vector<HostGaussian> host;
   GaussianScene<double> scene;
   make_host_scene(rng, host, scene);
-  Camera<double> cam;
-  cam.intrinsics = {60, 60, 32, 24, 64, 48};
+  const Camera<double> cam = host_camera();
   const HostAdaptor adaptor{&host};
 
   Renderer<double> a, b;
@@ -113,9 +125,7 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
   // Gradients in each adaptor's own parametrisation: activated scales get
   // d/ds = (d/d log s) / s; means, opacity logits and SH agree; the quaternion
   // gradient is in the order the adaptor returned it (w first).
-  Image<double> v(64, 48, 3);
-  std::uniform_real_distribution<double> gv(-1, 1);
-  for (double& x : v.data) x = gv(rng);
+  const Image<double> v = random_image(rng);
   const GaussianSceneGrad<double> g_host = a.backward(adaptor, cam, v);
   const GaussianSceneGrad<double> g_lib = b.backward(SceneView<double>(scene), cam, v);
   double worst = 0, largest = 0;
@@ -140,12 +150,9 @@ TEST_CASE("backward writes into the host's own arrays, in the host's parametrisa
   std::vector<HostGaussian> host;
   GaussianScene<double> scene;
   make_host_scene(rng, host, scene);
-  Camera<double> cam;
-  cam.intrinsics = {60, 60, 32, 24, 64, 48};
+  const Camera<double> cam = host_camera();
   const HostAdaptor adaptor{&host};
-  Image<double> v(64, 48, 3);
-  std::uniform_real_distribution<double> gv(-1, 1);
-  for (double& x : v.data) x = gv(rng);
+  const Image<double> v = random_image(rng);
 
   Renderer<double> lib;
   lib.render(SceneView<double>(scene), cam);
