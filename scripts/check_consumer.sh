@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # A downstream project uses orbitforge three ways: find_package after install,
-# FetchContent, and copied headers with the include paths the README names. Each
-# builds and runs the two vendoring examples (examples/host_adaptor.cpp,
-# examples/orbit_from_gl.cpp) and a core-only program; the README's C++ snippets
-# are compiled (and run, when they have a main) against the copied headers.
+# FetchContent, and copied headers with the include paths the README names. The
+# installed package and the copied headers build and run the two vendoring
+# examples (examples/host_adaptor.cpp, examples/orbit_from_gl.cpp) and a
+# core-only program (FetchContent: that program); the README's C++ snippets are
+# compiled (and run, when they have a main) against the copied headers.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 work=$(mktemp -d)
@@ -20,9 +21,13 @@ cmake --install "$work/build" >/dev/null
 for via in package fetch; do
   cmake -S "$root/tests/consumer" -B "$work/$via" -DORBITFORGE_VIA=$via -DCMAKE_PREFIX_PATH="$work/prefix" \
     -DORBITFORGE_SOURCE="$root" -DORBITFORGE_EXAMPLES="$root/examples" --no-warn-unused-cli >/dev/null
-  cmake --build "$work/$via" --parallel "$(nproc)" >/dev/null
-  run_all "$work/$via"
 done
+# The examples against the installed package; FetchContent's targets are the same
+# files, so it builds the core-only program alone.
+cmake --build "$work/package" --parallel "$(nproc)" >/dev/null
+run_all "$work/package"
+cmake --build "$work/fetch" --target consumer >/dev/null
+"$work/fetch/consumer" >/dev/null
 
 # Copied headers: orbitforge::core needs -I include -I /usr/include/eigen3 (xsimd
 # is in /usr/include); io/ and pipeline/ add stb and nlohmann-json, also in
