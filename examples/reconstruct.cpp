@@ -48,6 +48,7 @@ const char* kUsage =
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
     "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH]\n"
     "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
+    "                   [--coarse-levels L [--coarse-fraction F]]\n"
     "                   --out DIR\n"
     "  --protocol paper: the DeformableGS backend's schedule, learning rates and 8 x 256 network, unscaled,\n"
     "                    10,000 iterations, deformable, frames at their own size (flags given override)\n";
@@ -65,6 +66,8 @@ struct Args {
   // scene up to about a Gaussian per pixel (six 320x240 photographs: 375k).
   int min_densify_interval = 50;
   unsigned seed = 0;
+  int coarse_levels = 0;
+  double coarse_fraction = 0.5;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
@@ -119,6 +122,8 @@ Args parse(int argc, char** argv) {
     else if (f == "--eval-every") a.eval_every = int(to_long(f, value(), 1));
     else if (f == "--seed") a.seed = unsigned(to_long(f, value(), 0));
     else if (f == "--min-densify-interval") a.min_densify_interval = int(to_long(f, value(), 1));
+    else if (f == "--coarse-levels") a.coarse_levels = int(to_long(f, value(), 0));
+    else if (f == "--coarse-fraction") a.coarse_fraction = to_double(f, value());
     else if (f == "--minutes") {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
@@ -230,6 +235,8 @@ int run(const Args& a) {
   p.field = a.field;
   p.field.scale_offset = a.scale_offset;
   p.min_densify_interval = a.min_densify_interval;
+  p.coarse_levels = a.coarse_levels;
+  p.coarse_fraction = a.coarse_fraction;
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;

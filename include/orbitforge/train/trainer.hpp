@@ -120,7 +120,22 @@ struct TrainParams {
   // 0 = off.
   double time_noise = 0;
   int time_noise_steps = 20000;
+
+  // Coarse-to-fine: the first coarse_fraction of the budget trains on frames
+  // downsampled by 2^level (2x2 box filter per level, focal length and principal
+  // point scaled by the same 2^-level), level falling linearly from
+  // coarse_levels to 0 over that span; the rest at full size. 0 = off.
+  int coarse_levels = 0;
+  double coarse_fraction = 0.5;
 };
+
+// The image level of iteration `it` (1-based) under the coarse-to-fine schedule.
+inline int coarse_level_at(const TrainParams& p, int it) {
+  if (p.coarse_levels <= 0 || !(p.coarse_fraction > 0)) return 0;
+  const double span = p.coarse_fraction * double(p.iterations);
+  const double left = 1.0 - double(it - 1) / span;  // 1 at the start, 0 at the end of the span
+  return left <= 0 ? 0 : std::min(p.coarse_levels, int(std::ceil(left * p.coarse_levels)));
+}
 
 struct TrainProgress {
   int iteration = 0, iterations = 0;
@@ -129,6 +144,7 @@ struct TrainProgress {
   std::size_t gaussians = 0;
   int sh_degree = 0;
   bool deforming = false;            // the deformation field was applied
+  int image_level = 0;               // coarse-to-fine: the frame was downsampled by 2^image_level
   double seconds_per_iteration = 0;  // wall time of this iteration
   double elapsed_seconds = 0;        // wall time of all iterations trained by this object
   std::size_t frame = 0;
@@ -174,6 +190,10 @@ class Trainer {
     ensure(params.max_sh_degree >= 0 && params.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ",
            params.max_sh_degree);
     ensure(params.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
+    ensure(params.coarse_levels >= 0 && params.coarse_levels <= 6 && params.coarse_fraction >= 0 &&
+               params.coarse_fraction <= 1,
+           "Trainer: coarse_levels must be 0..6 and coarse_fraction 0..1, got ", params.coarse_levels, " and ",
+           params.coarse_fraction);
     scene_.check_consistent();
     ensure(!scene_.empty(), "Trainer: the initial scene has no Gaussians");
     ensure(scene_.sh_degree <= params.max_sh_degree, "Trainer: initial scene has SH degree ", scene_.sh_degree,
@@ -267,7 +287,8 @@ class Trainer {
     if (it % schedule_.sh_interval == 0 && scene_.sh_degree < params_.max_sh_degree) raise_sh_degree();
 
     const std::size_t fi = next_frame();
-    const TrainFrame<Scalar>& frame = frames_[fi];
+    const int level = coarse_level_at(params_, it);
+    const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_frame(fi, level);
     const bool deforming = deforming_at(it);
     const GaussianSceneGrad<Scalar>* grad = nullptr;
     const RenderOutput<Scalar>* out = nullptr;
@@ -330,7 +351,16 @@ class Trainer {
     // Adaptive density control.
     const DensifySchedule& ds = schedule_.densify;
     if (params_.densify) {
-      if (ds.collects_stats(it)) stats_.add_view(grad->screen_grad_ndc_norm, renderer_.projected().radius);
+      if (ds.collects_stats(it)) {
+        if (level == 0) {
+          stats_.add_view(grad->screen_grad_ndc_norm, renderer_.projected().radius);
+        } else {  // radii in full-size pixels (the screen-size prune compares them with a pixel count)
+          const auto& r = renderer_.projected().radius;
+          full_radius_.resize(r.size());
+          for (std::size_t i = 0; i < r.size(); ++i) full_radius_[i] = r[i] << level;
+          stats_.add_view(grad->screen_grad_ndc_norm, full_radius_);
+        }
+      }
       if (ds.densifies_at(it)) densify_now(ds.size_prune_at(it));
       if (ds.resets_opacity_at(it, white_background())) reset_opacities();
     }
@@ -346,6 +376,7 @@ class Trainer {
     last_.gaussians = scene_.size();
     last_.sh_degree = scene_.sh_degree;
     last_.deforming = deforming;
+    last_.image_level = level;
     last_.seconds_per_iteration = secs;
     last_.elapsed_seconds = elapsed_;
     last_.frame = fi;
@@ -482,6 +513,32 @@ class Trainer {
     return Scalar(n(rng_) * params_.time_noise * anneal / remaining);
   }
 
+  // Frame fi at image level `level` (>= 1), built on first use: each level halves
+  // the one above (2x2 box filter; an odd last row or column is dropped) and the
+  // camera keeps its pose with fx, fy, cx, cy scaled by 2^-level.
+  const TrainFrame<Scalar>& coarse_frame(std::size_t fi, int level) {
+    if (coarse_.size() != frames_.size()) coarse_.assign(frames_.size(), {});
+    auto& levels = coarse_[fi];
+    while (int(levels.size()) < level) {
+      const TrainFrame<Scalar>& above = levels.empty() ? frames_[fi] : levels.back();
+      TrainFrame<Scalar> f = above;
+      const int w = std::max(1, above.image.width / 2), h = std::max(1, above.image.height / 2);
+      f.image = Image<Scalar>(w, h, 3);
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          for (int c = 0; c < 3; ++c) {
+            const int x1 = std::min(2 * x + 1, above.image.width - 1), y1 = std::min(2 * y + 1, above.image.height - 1);
+            f.image(x, y, c) = Scalar(0.25) * (above.image(2 * x, 2 * y, c) + above.image(x1, 2 * y, c) +
+                                               above.image(2 * x, y1, c) + above.image(x1, y1, c));
+          }
+      Intrinsics<Scalar>& k = f.camera.intrinsics;
+      k.fx *= Scalar(0.5), k.fy *= Scalar(0.5), k.cx *= Scalar(0.5), k.cy *= Scalar(0.5);
+      k.width = w, k.height = h;
+      levels.push_back(std::move(f));
+    }
+    return levels[std::size_t(level - 1)];
+  }
+
   std::size_t next_frame() {
     if (cursor_ >= order_.size()) {
       std::size_t k = 0;
@@ -575,6 +632,8 @@ class Trainer {
   TrainSchedule schedule_;
   GaussianScene<Scalar> scene_;
   Adam<Scalar> adam_, field_adam_;
+  std::vector<std::vector<TrainFrame<Scalar>>> coarse_;  // [frame][level - 1], coarse-to-fine
+  std::vector<std::int32_t> full_radius_;
   int g_means_ = -1, g_rot_ = -1, g_scale_ = -1, g_opacity_ = -1, g_dc_ = -1, g_rest_ = -1, g_field_ = -1;
   std::mt19937 rng_;
   std::vector<std::size_t> order_;

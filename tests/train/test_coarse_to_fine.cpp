@@ -1,0 +1,77 @@
+// Coarse-to-fine training (TrainParams::coarse_levels): the level schedule, and
+// a coarse start that still fits the full-size frames.
+#include <catch2/catch.hpp>
+
+#include "orbitforge/metrics/image.hpp"
+#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/train/init.hpp"
+#include "orbitforge/train/trainer.hpp"
+
+using namespace orbitforge;
+
+TEST_CASE("coarse-to-fine: the level falls from coarse_levels to 0 over coarse_fraction of the budget",
+          "[train][coarse]") {
+  TrainParams p;
+  p.iterations = 1000;
+  REQUIRE(coarse_level_at(p, 1) == 0);  // off by default
+  p.coarse_levels = 2;
+  p.coarse_fraction = 0.5;
+  REQUIRE(coarse_level_at(p, 1) == 2);
+  REQUIRE(coarse_level_at(p, 250) == 2);
+  REQUIRE(coarse_level_at(p, 251) == 1);
+  REQUIRE(coarse_level_at(p, 500) == 1);
+  REQUIRE(coarse_level_at(p, 501) == 0);
+  REQUIRE(coarse_level_at(p, 1000) == 0);
+  p.coarse_levels = 7;
+  REQUIRE_THROWS_WITH((Trainer<float>({}, GaussianScene<float>{}, p)), Catch::Contains("Trainer"));
+}
+
+TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-size training", "[train][coarse]") {
+  SyntheticInputParams sp;
+  sp.frames = sp.source_frames = 6;
+  sp.width = 64;
+  sp.height = 48;
+  sp.focal = 60;
+  sp.object_gaussians = 300;
+  sp.ground_gaussians = 150;
+  const auto in = make_synthetic_input<float>(sp);
+  RenderParams<float> rp;
+  rp.threads = 2;
+  rp.background = {1, 1, 1};
+  Renderer<float> r(rp);
+  std::vector<TrainFrame<float>> frames;
+  for (int i = 0; i < sp.frames; ++i) {
+    TrainFrame<float> f;
+    f.camera = in.true_cameras[std::size_t(i)];
+    f.image = r.render(SceneView<float>(in.scene), f.camera).color;
+    frames.push_back(std::move(f));
+  }
+  auto fit = [&](int levels) {
+    std::vector<Camera<float>> cams;
+    for (const auto& f : frames) cams.push_back(f.camera);
+    InitParams ip;
+    ip.random_points = 2000;
+    TrainParams p;
+    p.iterations = 600;
+    p.threads = 2;
+    p.background = {1, 1, 1};
+    p.min_densify_interval = 50;
+    p.coarse_levels = levels;
+    Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);
+    int coarse_steps = 0;
+    while (t.iteration() < p.iterations) {
+      const TrainProgress& pr = t.step();
+      REQUIRE(pr.image_level == coarse_level_at(p, pr.iteration));
+      if (pr.image_level > 0) ++coarse_steps;
+    }
+    double psnr_sum = 0;
+    for (const auto& f : frames) psnr_sum += psnr(clamp01(t.render(f.camera, 0)), f.image);
+    return std::make_pair(psnr_sum / double(frames.size()), coarse_steps);
+  };
+  const auto full = fit(0), coarse = fit(2);
+  INFO("full-size " << full.first << " dB, coarse-to-fine " << coarse.first << " dB");
+  REQUIRE(full.second == 0);
+  REQUIRE(coarse.second == 300);
+  REQUIRE(full.first > 20);
+  REQUIRE(coarse.first > full.first - 1.0);
+}
