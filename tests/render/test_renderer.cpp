@@ -1,5 +1,6 @@
 // The full renderer (project -> bin -> rasterize, and its backward) against the
-// reference and against finite differences w.r.t. the GaussianScene parameters.
+// independent double-precision reference (its own projection and SH) and against
+// finite differences w.r.t. the GaussianScene parameters.
 #include <catch2/catch.hpp>
 
 #include <random>
@@ -38,6 +39,48 @@ GaussianScene<S> random_scene(std::uint32_t seed, std::size_t n, int degree, dou
   return s;
 }
 
+// Largest difference of the library's image from the double reference that
+// rounding allows: float carries ~1e-7 relative error through u (up to ~1e3 px:
+// measured 6e-6 there, 7e-7 on small images), the conic and tens of blended
+// layers; double only round-off (measured 1.4e-14).
+template <class S> constexpr double reference_tol() { return sizeof(S) == 4 ? 2e-5 : 1e-12; }
+
+// Colour and transmittance within reference_tol and equal contribution counts at
+// every pixel that is not fragile (a threshold, rect edge or depth tie within
+// rounding, where float may legitimately go either way). In double no pixel is
+// fragile; in float few are.
+template <class S, class Scene>
+void check_render_against_reference(const RenderOutput<S>& out, const Scene& scene, const Camera<S>& cam,
+                                    std::array<S, 3> bg) {
+  const ReferenceProjection proj = reference_project(scene, cam);
+  const int w = cam.intrinsics.width, h = cam.intrinsics.height;
+  const auto ref =
+      reference_rasterize(proj.splats, w, h, std::array<double, 3>{{double(bg[0]), double(bg[1]), double(bg[2])}});
+  // Margins a few times the rounding of S: on alpha and lambda, on u (which grows
+  // with the image size) and on depth.
+  const bool f32 = sizeof(S) == 4;
+  const double rel = f32 ? 2e-5 : 1e-10, edge = f32 ? 1e-6 * std::max(w, h) + 2e-5 : 1e-9;
+  const std::vector<bool> fragile = reference_fragile_pixels(proj, w, h, rel, edge, f32 ? 1.5e-6 : 1e-12);
+  double worst_color = 0, worst_T = 0;
+  std::size_t n_fragile = 0, count_mismatch = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      if (fragile[std::size_t(y) * std::size_t(w) + std::size_t(x)]) { ++n_fragile; continue; }
+      for (int c = 0; c < 3; ++c)
+        worst_color = std::max(worst_color, std::abs(double(out.color(x, y, c)) - ref.color(x, y, c)));
+      worst_T = std::max(worst_T, std::abs(double(out.transmittance(x, y)) - ref.transmittance(x, y)));
+      if (out.count(x, y) != ref.count(x, y)) ++count_mismatch;
+    }
+  INFO("fragile pixels " << n_fragile << " of " << w * h);
+  CHECK(worst_color <= reference_tol<S>());
+  CHECK(worst_T <= reference_tol<S>());
+  CHECK(count_mismatch == 0);
+  if (f32)
+    CHECK(n_fragile * 25 <= std::size_t(w * h) + 25);  // 4%, or one pixel
+  else
+    CHECK(n_fragile == 0);
+}
+
 }  // namespace
 
 TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd sizes", "[render]", float, double) {
@@ -53,10 +96,7 @@ TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd s
       const auto scene = random_scene<S>(std::uint32_t(10 + degree), 400, degree);
       const auto cam = test_camera<S>(c.w, c.h, S(c.h > 3 ? 1.2 * c.w : 40));
       const auto& out = r.render(SceneView<S>(scene), cam);
-      const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-      CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
-      CHECK(max_abs_diff(out.transmittance, ref.transmittance) <= same_precision_tol<S>());
-      CHECK(max_abs_diff(out.count, ref.count) == 0);
+      check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
       CHECK(out.frame.gaussians_visible == out.frame.projection.visible);
       CHECK(out.frame.contributions == out.stats.contributions);
       CHECK(out.frame.threads == 2);
@@ -90,15 +130,13 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     CHECK(out.frame.projection.culled_near >= 2);
     CHECK(out.frame.projection.culled_nonfinite >= 1);
     for (S v : out.color.data) CHECK(std::isfinite(v));
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
   SECTION("flattened Gaussians (zero scale on one axis)") {
     auto scene = random_scene<S>(78, 100, 0);
     for (std::size_t i = 0; i < scene.size(); ++i) scene.log_scales[3 * i + 2] = S(-30);
     const auto& out = r.render(SceneView<S>(scene), cam);
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
   SECTION("a Gaussian covering the whole image") {
     auto scene = random_scene<S>(79, 1, 0);
@@ -107,8 +145,7 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     const auto& out = r.render(SceneView<S>(scene), cam);
     CHECK(out.count(0, 0) == 1);
     CHECK(out.count(23, 19) == 1);
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
 }
 
