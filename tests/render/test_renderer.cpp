@@ -39,46 +39,20 @@ GaussianScene<S> random_scene(std::uint32_t seed, std::size_t n, int degree, dou
   return s;
 }
 
-// Largest difference of the library's image from the double reference that
-// rounding allows: float carries ~1e-7 relative error through u (up to ~1e3 px:
-// measured 6e-6 there, 7e-7 on small images), the conic and tens of blended
-// layers; double only round-off (measured 1.4e-14).
-template <class S> constexpr double reference_tol() { return sizeof(S) == 4 ? 2e-5 : 1e-12; }
-
-// Colour and transmittance within reference_tol and equal contribution counts at
-// every pixel that is not fragile (a threshold, rect edge or depth tie within
-// rounding, where float may legitimately go either way). In double no pixel is
-// fragile; in float few are.
+// The library's image against the independent double reference (see
+// compare_with_reference): in double every pixel, in float all but a few.
 template <class S, class Scene>
 void check_render_against_reference(const RenderOutput<S>& out, const Scene& scene, const Camera<S>& cam,
                                     std::array<S, 3> bg) {
-  const ReferenceProjection proj = reference_project(scene, cam);
-  const int w = cam.intrinsics.width, h = cam.intrinsics.height;
-  const auto ref =
-      reference_rasterize(proj.splats, w, h, std::array<double, 3>{{double(bg[0]), double(bg[1]), double(bg[2])}});
-  // Margins a few times the rounding of S: on alpha and lambda, on u (which grows
-  // with the image size) and on depth.
-  const bool f32 = sizeof(S) == 4;
-  const double rel = f32 ? 2e-5 : 1e-10, edge = f32 ? 1e-6 * std::max(w, h) + 2e-5 : 1e-9;
-  const std::vector<bool> fragile = reference_fragile_pixels(proj, w, h, rel, edge, f32 ? 1.5e-6 : 1e-12);
-  double worst_color = 0, worst_T = 0;
-  std::size_t n_fragile = 0, count_mismatch = 0;
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      if (fragile[std::size_t(y) * std::size_t(w) + std::size_t(x)]) { ++n_fragile; continue; }
-      for (int c = 0; c < 3; ++c)
-        worst_color = std::max(worst_color, std::abs(double(out.color(x, y, c)) - ref.color(x, y, c)));
-      worst_T = std::max(worst_T, std::abs(double(out.transmittance(x, y)) - ref.transmittance(x, y)));
-      if (out.count(x, y) != ref.count(x, y)) ++count_mismatch;
-    }
-  INFO("fragile pixels " << n_fragile << " of " << w * h);
-  CHECK(worst_color <= reference_tol<S>());
-  CHECK(worst_T <= reference_tol<S>());
-  CHECK(count_mismatch == 0);
-  if (f32)
-    CHECK(n_fragile * 25 <= std::size_t(w * h) + 25);  // 4%, or one pixel
+  const ReferenceComparison c = compare_with_reference(out, scene, cam, bg);
+  INFO("fragile pixels " << c.fragile << " of " << c.pixels);
+  CHECK(c.worst_color <= reference_tol<S>());
+  CHECK(c.worst_T <= reference_tol<S>());
+  CHECK(c.count_mismatch == 0);
+  if (sizeof(S) == 4)
+    CHECK(c.fragile * 25 <= c.pixels + 25);  // 4%, or one pixel
   else
-    CHECK(n_fragile == 0);
+    CHECK(c.fragile == 0);
 }
 
 }  // namespace
