@@ -71,11 +71,10 @@ const std::vector<double>* grad_field(const ProjectedSplatsGrad<double>& g, int 
 const char* field_names[] = {"mean_x", "mean_y", "conic_a", "conic_b", "conic_c",
                              "opacity", "color_r", "color_g", "color_b", "depth"};
 
-void check_fd(ProjectedSplats<double> s, int w, int h, int tile, bool alpha, bool depth, std::uint32_t seed) {
+void check_fd_with(ProjectedSplats<double> s, int w, int h, int tile, const LossWeights& lw, bool alpha, bool depth) {
   RasterParams<double> p;
   p.background = {{0.3, 0.6, 0.1}};
   p.threads = 2;
-  const LossWeights lw = random_weights(w, h, seed, alpha, depth);
   const auto g = analytic(s, w, h, tile, p, lw, alpha, depth);
   double worst = 0;
   int checked = 0;
@@ -118,6 +117,10 @@ void check_fd(ProjectedSplats<double> s, int w, int h, int tile, bool alpha, boo
   }
   CHECK(checked > 0);
   WARN("worst relative FD error " << worst << " over " << checked << " entries");
+}
+
+void check_fd(const ProjectedSplats<double>& s, int w, int h, int tile, bool alpha, bool depth, std::uint32_t seed) {
+  check_fd_with(s, w, h, tile, random_weights(w, h, seed, alpha, depth), alpha, depth);
 }
 
 }  // namespace
@@ -224,6 +227,126 @@ TEST_CASE("gradients are zero where the forward clamps or skips", "[render][grad
   for (int f = 0; f < 10; ++f) {
     CHECK((*grad_field(g.splats, f))[1] == 0);
     CHECK((*grad_field(g.splats, f))[2] == 0);
+  }
+}
+
+namespace {
+
+// The loss at pixel (x, y) only, and its gradient.
+RasterGradOutput<double> one_pixel_gradient(const ProjectedSplats<double>& s, int w, int h, int x, int y) {
+  LossWeights lw{Image<double>(w, h, 3), Image<double>(w, h, 1), Image<double>(w, h, 1)};
+  lw.wc(x, y, 0) = 1;
+  lw.wc(x, y, 1) = -0.5;
+  lw.wc(x, y, 2) = 0.25;
+  lw.wa(x, y) = 0.7;
+  lw.wd(x, y) = 0.1;
+  return analytic(s, w, h, 8, RasterParams<double>{}, lw, true, true);
+}
+
+bool all_zero(const RasterGradOutput<double>& g, std::size_t i) {
+  for (int f = 0; f < 10; ++f)
+    if ((*grad_field(g.splats, f))[i] != 0) return false;
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("backward agrees with the forward at the 1/255 skip, the 0.99 clamp and the 1e-4 stop", "[render][grad]") {
+  const int W = 24, H = 12;
+  const double a_min = 1.0 / 255, margin = 2e-3;  // relative distance of the aimed pairs from 1/255
+  ProjectedSplats<double> s;
+  s.resize(10);
+  auto put = [&](std::size_t i, double mx, double my, double a, double b, double c, double o, double z) {
+    s.mean_x[i] = mx; s.mean_y[i] = my;
+    s.conic_a[i] = a; s.conic_b[i] = b; s.conic_c[i] = c;
+    s.opacity[i] = o; s.depth[i] = z;
+    s.color_r[i] = 0.2 + 0.1 * double(i); s.color_g[i] = 0.9 - 0.1 * double(i); s.color_b[i] = 0.5;
+    set_rect_from_conic(s, i, W, H);
+  };
+  // 0: mean on a pixel corner, alpha at its four nearest pixel centres
+  // (d = (0.5, 0.5), power -0.25) just below 1/255: skipped everywhere.
+  put(0, 2.0, 2.0, 1, 0, 1, a_min * (1 - margin) / std::exp(-0.25), 1.0);
+  // 1: mean on the centre of pixel (8, 4); 255 o = 2^6 / ln 2, where the backward's
+  // cheap lower bound of log2(1 / (255 o)) (bin.hpp alpha_power_floor) is least
+  // tight. Pixels (5, 4), (11, 4) (dx = 3) just above 1/255, (8, 1), (8, 7)
+  // (dy = 3) just below.
+  const double o1 = 64 / std::log(2.0) / 255;
+  put(1, 8.5, 4.5, 2 * std::log(255 * o1 / (1 + margin)) / 9, 0, 2 * std::log(255 * o1 / (1 - margin)) / 9, o1, 1.1);
+  s.rect_x0[1] = 3; s.rect_x1[1] = 14; s.rect_y0[1] = 0; s.rect_y1[1] = 9;  // room around the 3-sigma square
+  // 2: opaque, raw alpha ~0.998 at pixel (19, 3): clamped there, not at (20, 3).
+  put(2, 19.55, 3.45, 0.25, 0.05, 0.3, 1.0, 1.5);
+  // 3..7: a stack with alpha ~0.967 at pixel (4, 8): T = 0.033, 1.1e-3, then
+  // 3.6e-5 < 1e-4, so 5 stops the pixel and 5..7 are not blended there.
+  for (std::size_t i = 3; i < 8; ++i) put(i, 4.6, 8.4, 0.3, 0.02, 0.35, 0.97, 2 + double(i));
+  // 8: 255 o = 1 / ln 2, just above 1/255 at pixel (14, 9) only (dx = 0.3; every
+  // other pixel far below), so the backward's chunk pre-test must let it through.
+  const double o8 = 1 / std::log(2.0) / 255;
+  put(8, 14.8, 9.5, 2 * std::log(255 * o8 / (1 + margin)) / 0.09, 0, 8.1, o8, 1.2);
+  // 9: a backdrop behind everything: every pixel blends something after the
+  // aimed pairs, so the backward replays past them.
+  put(9, 12, 6, 0.006, 0, 0.01, 0.5, 30);
+  // No pair within 1e-3 of a threshold (the aimed ones sit 2e-3 away), so the
+  // finite-difference steps (relative changes <= 3e-4) cross none.
+  REQUIRE(threshold_violators(s, W, H, 1e-3).empty());
+
+  BinWorkspace<double> bins;
+  bin_splats(s, W, H, 8, bins);
+  RasterOutput<double> out;
+  RasterWorkspace<double> ws;
+  rasterize(bins, RasterParams<double>{}, out, ws);
+  CHECK(out.count(4, 8) == 2);
+  CHECK(out.count(11, 4) == 2);  // 1 and the backdrop
+  CHECK(out.count(14, 9) == 2);  // 8 and the backdrop
+
+  // Skipped below 1/255: exactly zero.
+  CHECK(all_zero(one_pixel_gradient(s, W, H, 2, 2), 0));
+  CHECK(all_zero(one_pixel_gradient(s, W, H, 1, 1), 0));
+  for (const auto& xy : {std::array<int, 2>{{8, 1}}, std::array<int, 2>{{8, 7}}}) {
+    INFO("pixel " << xy[0] << ", " << xy[1]);
+    CHECK(all_zero(one_pixel_gradient(s, W, H, xy[0], xy[1]), 1));
+  }
+  // Blended just above 1/255: Gaussian 1 gets a gradient (dy = 0 and b = 0 there,
+  // so mean_y, conic_b and conic_c get exactly nothing).
+  for (const auto& xy : {std::array<int, 2>{{5, 4}}, std::array<int, 2>{{11, 4}}}) {
+    INFO("pixel " << xy[0] << ", " << xy[1]);
+    const auto g = one_pixel_gradient(s, W, H, xy[0], xy[1]);
+    for (int f : {0, 2, 5, 6, 7, 8, 9}) CHECK((*grad_field(g.splats, f))[1] != 0);
+  }
+  {
+    const auto g = one_pixel_gradient(s, W, H, 14, 9);
+    for (int f : {0, 2, 5, 6, 7, 8, 9}) CHECK((*grad_field(g.splats, f))[8] != 0);
+    CHECK(all_zero(one_pixel_gradient(s, W, H, 15, 9), 8));
+  }
+  {
+    // Clamped at 0.99: colour and depth get w, opacity, conic and mean nothing.
+    const auto g = one_pixel_gradient(s, W, H, 19, 3);
+    for (int f : {0, 1, 2, 3, 4, 5}) CHECK((*grad_field(g.splats, f))[2] == 0);
+    for (int f : {6, 7, 8, 9}) CHECK((*grad_field(g.splats, f))[2] != 0);
+    const auto g2 = one_pixel_gradient(s, W, H, 20, 3);
+    for (int f = 0; f < 10; ++f) CHECK((*grad_field(g2.splats, f))[2] != 0);
+  }
+  {
+    // The 1e-4 stop: 3 and 4 blended, 5..7 (the stopping one and those behind) not.
+    const auto g = one_pixel_gradient(s, W, H, 4, 8);
+    for (std::size_t i : {3, 4}) {
+      INFO("Gaussian " << i);
+      for (int f : {0, 5, 6, 9}) CHECK((*grad_field(g.splats, f))[i] != 0);
+    }
+    for (std::size_t i : {5, 6, 7}) {
+      INFO("Gaussian " << i);
+      CHECK(all_zero(g, i));
+    }
+  }
+  // Whole image, and each aimed pixel alone: the gradients are those of the forward.
+  check_fd(s, W, H, 8, true, true, 5);
+  for (const auto& xy : {std::array<int, 2>{{11, 4}}, std::array<int, 2>{{8, 7}}, std::array<int, 2>{{14, 9}},
+                         std::array<int, 2>{{19, 3}}, std::array<int, 2>{{4, 8}}}) {
+    INFO("pixel " << xy[0] << ", " << xy[1]);
+    LossWeights lw{Image<double>(W, H, 3), Image<double>(W, H, 1), Image<double>(W, H, 1)};
+    lw.wc(xy[0], xy[1], 0) = 1;
+    lw.wa(xy[0], xy[1]) = 0.7;
+    lw.wd(xy[0], xy[1]) = 0.1;
+    check_fd_with(s, W, H, 8, lw, true, true);
   }
 }
 

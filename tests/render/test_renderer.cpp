@@ -1,5 +1,6 @@
 // The full renderer (project -> bin -> rasterize, and its backward) against the
-// reference and against finite differences w.r.t. the GaussianScene parameters.
+// independent double-precision reference (its own projection and SH) and against
+// finite differences w.r.t. the GaussianScene parameters.
 #include <catch2/catch.hpp>
 
 #include <random>
@@ -38,6 +39,22 @@ GaussianScene<S> random_scene(std::uint32_t seed, std::size_t n, int degree, dou
   return s;
 }
 
+// The library's image against the independent double reference (see
+// compare_with_reference): in double every pixel, in float all but a few.
+template <class S, class Scene>
+void check_render_against_reference(const RenderOutput<S>& out, const Scene& scene, const Camera<S>& cam,
+                                    std::array<S, 3> bg) {
+  const ReferenceComparison c = compare_with_reference(out, scene, cam, bg);
+  INFO("fragile pixels " << c.fragile << " of " << c.pixels);
+  CHECK(c.worst_color <= reference_tol<S>());
+  CHECK(c.worst_T <= reference_tol<S>());
+  CHECK(c.count_mismatch == 0);
+  if (sizeof(S) == 4)
+    CHECK(c.fragile * 25 <= c.pixels + 25);  // 4%, or one pixel
+  else
+    CHECK(c.fragile == 0);
+}
+
 }  // namespace
 
 TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd sizes", "[render]", float, double) {
@@ -53,10 +70,7 @@ TEMPLATE_TEST_CASE("renderer matches the reference for every SH degree and odd s
       const auto scene = random_scene<S>(std::uint32_t(10 + degree), 400, degree);
       const auto cam = test_camera<S>(c.w, c.h, S(c.h > 3 ? 1.2 * c.w : 40));
       const auto& out = r.render(SceneView<S>(scene), cam);
-      const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-      CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
-      CHECK(max_abs_diff(out.transmittance, ref.transmittance) <= same_precision_tol<S>());
-      CHECK(max_abs_diff(out.count, ref.count) == 0);
+      check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
       CHECK(out.frame.gaussians_visible == out.frame.projection.visible);
       CHECK(out.frame.contributions == out.stats.contributions);
       CHECK(out.frame.threads == 2);
@@ -90,15 +104,13 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     CHECK(out.frame.projection.culled_near >= 2);
     CHECK(out.frame.projection.culled_nonfinite >= 1);
     for (S v : out.color.data) CHECK(std::isfinite(v));
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
   SECTION("flattened Gaussians (zero scale on one axis)") {
     auto scene = random_scene<S>(78, 100, 0);
     for (std::size_t i = 0; i < scene.size(); ++i) scene.log_scales[3 * i + 2] = S(-30);
     const auto& out = r.render(SceneView<S>(scene), cam);
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
   SECTION("a Gaussian covering the whole image") {
     auto scene = random_scene<S>(79, 1, 0);
@@ -107,8 +119,7 @@ TEMPLATE_TEST_CASE("renderer hard cases: near plane, empty, NaN culled and count
     const auto& out = r.render(SceneView<S>(scene), cam);
     CHECK(out.count(0, 0) == 1);
     CHECK(out.count(23, 19) == 1);
-    const auto ref = reference_render(SceneView<S>(scene), cam, p.background);
-    CHECK(max_abs_diff(out.color, ref.color) <= same_precision_tol<S>());
+    check_render_against_reference(out, SceneView<S>(scene), cam, p.background);
   }
 }
 

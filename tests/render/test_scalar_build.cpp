@@ -1,7 +1,8 @@
 // The renderer compiled with ORBITFORGE_NO_SIMD (the scalar build every kernel
 // must keep): native_batch is the one-lane scalar batch here, and the results
-// must match the reference with the same tolerances as the SIMD build, and its
-// backward must match finite differences.
+// must match the reference with the same tolerances as the SIMD build (the
+// rasterizer on given splats, the full renderer on a scene), and its backward
+// must match finite differences.
 #define ORBITFORGE_NO_SIMD 1
 #include <catch2/catch.hpp>
 
@@ -33,6 +34,37 @@ TEMPLATE_TEST_CASE("scalar build matches the reference", "[render][scalar]", flo
     CHECK(max_abs_diff(out.depth, ref.depth) <= 20 * tol);
     CHECK(max_abs_diff(out.count, ref.count) == 0);
   }
+}
+
+TEMPLATE_TEST_CASE("scalar build: the full renderer matches the independent reference", "[render][scalar]", float,
+                   double) {
+  using S = TestType;
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> u(-1, 1);
+  GaussianScene<S> scene;
+  scene.resize(300, 2);
+  for (std::size_t i = 0; i < scene.size(); ++i) {
+    for (int a = 0; a < 3; ++a) scene.means[3 * i + a] = S(u(rng));
+    for (int a = 0; a < 4; ++a) scene.rotations[4 * i + a] = S(u(rng));
+    for (int a = 0; a < 3; ++a) scene.log_scales[3 * i + a] = S(-2.3 + 0.6 * u(rng));
+    scene.opacity_logits[i] = S(1.5 * u(rng));
+  }
+  for (auto& v : scene.sh) v = S(0.4 * u(rng));
+  Camera<S> cam;
+  cam.intrinsics = {S(50), S(50), S(21.3), S(14.8), 41, 29};
+  cam.R = Eigen::AngleAxis<S>(S(0.2), Eigen::Matrix<S, 3, 1>(S(0.3), S(1), S(-0.2)).normalized()).toRotationMatrix();
+  cam.t = Eigen::Matrix<S, 3, 1>(S(0.1), S(0.05), S(4));
+  RenderParams<S> p;
+  p.background = {{S(0.2), S(0.5), S(0.9)}};
+  p.threads = 2;
+  Renderer<S> r(p);
+  const ReferenceComparison c = compare_with_reference(r.render(SceneView<S>(scene), cam), SceneView<S>(scene), cam,
+                                                       p.background);
+  INFO("fragile pixels " << c.fragile << " of " << c.pixels);
+  CHECK(c.worst_color <= reference_tol<S>());
+  CHECK(c.worst_T <= reference_tol<S>());
+  CHECK(c.count_mismatch == 0);
+  CHECK(c.fragile * 25 <= c.pixels + 25);
 }
 
 TEST_CASE("scalar build backward matches finite differences", "[render][scalar][grad]") {

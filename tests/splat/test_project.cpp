@@ -107,6 +107,110 @@ TEMPLATE_TEST_CASE("projection of an isotropic Gaussian: mean, conic, radius, co
   REQUIRE(out.color_b[0] == Approx(0.5).epsilon(tol));
 }
 
+TEMPLATE_TEST_CASE("anisotropic Gaussian on the optical axis of a rotated camera: closed form", "[splat][project]",
+                   float, double) {
+  using S = TestType;
+  using Vec3 = Eigen::Matrix<S, 3, 1>;
+  // Gaussian rotation: 120 deg about (1, 1, 1), q = (1, 1, 1, 1) un-normalised:
+  // local x, y, z -> world y, z, x. Camera rows (right, down, forward) = world z,
+  // x, y, so camera x, y, z see the Gaussian's local y, z, x: camera-space
+  // covariance diag(s2^2, s3^2, s1^2). (The transposed camera or the conjugate
+  // quaternion would give another permutation.)
+  const double s1 = 0.3, s2 = 0.2, s3 = 0.1, z = 4, fx = 100, fy = 80, cx = 31.5, cy = 19.25;
+  Camera<S> cam;
+  cam.intrinsics = {S(fx), S(fy), S(cx), S(cy), 64, 40};
+  cam.R << 0, 0, 1, 1, 0, 0, 0, 1, 0;
+  const Vec3 mean(S(0.2), S(-0.3), S(0.4));
+  const Vec3 centre = mean - S(z) * Vec3(0, 1, 0);  // the mean on the optical axis at depth z
+  cam.t = -cam.R * centre;
+  auto scene = single<S>(mean, S(0), S(0.7), 1);
+  for (int q = 0; q < 4; ++q) scene.rotations[std::size_t(q)] = S(1);
+  scene.log_scales[0] = S(std::log(s1));
+  scene.log_scales[1] = S(std::log(s2));
+  scene.log_scales[2] = S(std::log(s3));
+  scene.sh[3 * 1 + 0] = S(0.5);   // k = 1: -C1 y
+  scene.sh[3 * 3 + 1] = S(0.7);   // k = 3: -C1 x (x = 0 here)
+  scene.sh[3 * 1 + 2] = S(-0.2);
+  ProjectedSplats<S> out;
+  project_scene(SceneView<S>(scene), cam, ProjectionParams{}, out, nullptr, 1);
+  REQUIRE(out.radius[0] > 0);
+  const double tol = std::is_same<S, float>::value ? 1e-5 : 1e-12;
+  // On the axis J = diag(fx / z, fy / z) (no z column): cov2d is diagonal.
+  const double cxx = (fx / z) * (fx / z) * s2 * s2 + 0.3, cyy = (fy / z) * (fy / z) * s3 * s3 + 0.3;  // 25.3, 4.3
+  CHECK(out.mean_x[0] == Approx(cx).epsilon(tol));
+  CHECK(out.mean_y[0] == Approx(cy).epsilon(tol));
+  CHECK(out.depth[0] == Approx(z).epsilon(tol));
+  CHECK(out.conic_a[0] == Approx(1 / cxx).epsilon(tol));
+  CHECK(std::abs(double(out.conic_b[0])) < tol);
+  CHECK(out.conic_c[0] == Approx(1 / cyy).epsilon(tol));
+  CHECK(out.radius[0] == 16);  // ceil(3 sqrt(25.3)) = ceil(15.09)
+  // Viewing direction = world +y: basis (C0, -C1, 0, 0).
+  const double C1 = 0.4886025119029199;
+  CHECK(out.color_r[0] == Approx(0.5 - C1 * 0.5).epsilon(tol));
+  CHECK(out.color_g[0] == Approx(0.5).epsilon(tol));
+  CHECK(out.color_b[0] == Approx(0.5 + C1 * 0.2).epsilon(tol));
+}
+
+TEMPLATE_TEST_CASE("anisotropic Gaussian off-axis, rotated camera, with and without the clamp: closed form",
+                   "[splat][project]", float, double) {
+  using S = TestType;
+  using Vec3 = Eigen::Matrix<S, 3, 1>;
+  const double fx = 100, fy = 80, cx = 31.5, cy = 19.25;
+  const int W = 64, H = 40;
+  const double lim_x = 1.3 * 0.5 * W / fx, lim_y = 1.3 * 0.5 * H / fy;  // 0.416, 0.325
+  // Camera rows (right, down, forward) = world y, z, x.
+  Camera<S> cam;
+  cam.intrinsics = {S(fx), S(fy), S(cx), S(cy), W, H};
+  cam.R << 0, 1, 0, 0, 0, 1, 1, 0, 0;
+  const Vec3 centre(S(0.3), S(-0.2), S(0.1));
+  cam.t = -cam.R * centre;
+  struct Case { double tx, ty, tz, s1, s2, s3; };
+  // Inside the clamp; x/z beyond it (u off the image, the Gaussian large enough to
+  // reach in); y/z beyond it.
+  for (const Case c : {Case{1.0, -0.8, 4, 0.15, 0.25, 0.1}, Case{2.4, 0.3, 4, 1.6, 0.9, 0.5},
+                       Case{0.2, -1.6, 4, 0.2, 0.35, 1.1}}) {
+    INFO("camera-space mean " << c.tx << ", " << c.ty << ", " << c.tz);
+    // Gaussian rotation 45 deg about world z, q = (cos 22.5, 0, 0, sin 22.5):
+    // Sigma_world = [[p, m, 0], [m, p, 0], [0, 0, s3^2]], p = (s1^2 + s2^2) / 2,
+    // m = (s1^2 - s2^2) / 2. In camera space (x, y, z) = world (y, z, x):
+    // Sxx = p, Syy = s3^2, Szz = p, Sxz = m, Sxy = Syz = 0.
+    const double p = 0.5 * (c.s1 * c.s1 + c.s2 * c.s2), m = 0.5 * (c.s1 * c.s1 - c.s2 * c.s2);
+    const double Sxx = p, Syy = c.s3 * c.s3, Szz = p, Sxz = m;
+    const Vec3 mean = centre + cam.R.transpose() * Vec3(S(c.tx), S(c.ty), S(c.tz));
+    auto scene = single<S>(mean, S(0), S(2), 0);
+    const double half = 3.14159265358979323846 / 8;
+    scene.rotations[0] = S(std::cos(half));
+    scene.rotations[3] = S(std::sin(half));
+    scene.log_scales[0] = S(std::log(c.s1));
+    scene.log_scales[1] = S(std::log(c.s2));
+    scene.log_scales[2] = S(std::log(c.s3));
+    ProjectedSplats<S> out;
+    project_scene(SceneView<S>(scene), cam, ProjectionParams{}, out, nullptr, 1);
+    REQUIRE(out.radius[0] > 0);
+    // J = [[A, 0, B], [0, C, D]], A = fx/z, B = -fx tx'/z^2, C = fy/z, D = -fy ty'/z^2,
+    // tx' = clamp(tx/z, +-lim_x) z (likewise y).
+    const double z = c.tz;
+    const double txc = std::max(-lim_x, std::min(lim_x, c.tx / z)) * z;
+    const double tyc = std::max(-lim_y, std::min(lim_y, c.ty / z)) * z;
+    const double A = fx / z, B = -fx * txc / (z * z), C = fy / z, D = -fy * tyc / (z * z);
+    const double cxx = A * A * Sxx + 2 * A * B * Sxz + B * B * Szz + 0.3;
+    const double cxy = A * D * Sxz + B * D * Szz;  // + A C Sxy + B C Syz, both zero
+    const double cyy = C * C * Syy + D * D * Szz + 0.3;
+    const double det = cxx * cyy - cxy * cxy;
+    const double mid = 0.5 * (cxx + cyy), r3 = 3 * std::sqrt(mid + std::sqrt(mid * mid - det));
+    INFO("cov2d " << cxx << " " << cxy << " " << cyy << ", 3 sqrt(lambda_max) " << r3);
+    const double tol = std::is_same<S, float>::value ? 2e-5 : 1e-11;
+    CHECK(out.mean_x[0] == Approx(fx * c.tx / z + cx).epsilon(tol));
+    CHECK(out.mean_y[0] == Approx(fy * c.ty / z + cy).epsilon(tol));
+    CHECK(out.depth[0] == Approx(z).epsilon(tol));
+    CHECK(out.conic_a[0] == Approx(cyy / det).epsilon(tol));
+    CHECK(out.conic_b[0] == Approx(-cxy / det).epsilon(tol));
+    CHECK(out.conic_c[0] == Approx(cxx / det).epsilon(tol));
+    REQUIRE(std::abs(r3 - std::round(r3)) > 1e-3);  // the ceil below is not a rounding coin toss
+    CHECK(out.radius[0] == int(std::ceil(r3)));
+  }
+}
+
 TEMPLATE_TEST_CASE("culling: near plane, outside, faint, non-finite; stats add up", "[splat][project]", float,
                    double) {
   using S = TestType;

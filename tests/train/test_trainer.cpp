@@ -1,7 +1,8 @@
 // Trainer: a tiny synthetic scene (targets rendered from a known scene) is fitted
 // (loss falls), fixed seeds repeat bit for bit, checkpoint resume equals an
 // uninterrupted run, densification keeps the optimizer state aligned with the
-// scene, deformable training moves the network; initialisation helpers.
+// scene, deformable training moves the network and its loss gradient matches
+// finite differences; initialisation helpers.
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -437,5 +438,88 @@ TEST_CASE("checkpoint streams: damaged structure is refused, not loaded", "[trai
       CHECK(std::string(e.what()).find(d.expect) != std::string::npos);
     }
     CHECK(r.iteration() == 0);
+
+TEST_CASE("deformable step: d image loss / d network weights matches finite differences", "[train][trainer][grad]") {
+  // One frame, a few large Gaussians whose 3-sigma squares cover the image and
+  // whose alpha stays far from 1/255, 0.99 and the 1e-4 stop: the loss is smooth in
+  // the weights, so central differences are exact up to O(h^2) and round-off.
+  using S = double;
+  const int W = 16, H = 12;
+  TrainFrame<S> frame;
+  frame.camera.intrinsics = {S(20), S(20), S(8.3), S(5.8), W, H};
+  frame.camera.t = Eigen::Vector3d(0, 0, 4);
+  frame.image = Image<S>(W, H, 3);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      for (int c = 0; c < 3; ++c) frame.image(x, y, c) = 0.5 + 0.4 * std::sin(0.4 * x + 0.7 * y + 2.1 * c);
+  frame.time = 0.3;
+  const std::vector<TrainFrame<S>> frames{frame};
+  GaussianScene<S> scene;
+  scene.resize(5, 0);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (std::size_t i = 0; i < scene.size(); ++i) {
+    for (int a = 0; a < 3; ++a) scene.means[3 * i + a] = 0.3 * u(rng);
+    for (int a = 0; a < 4; ++a) scene.rotations[4 * i + a] = u(rng);
+    for (int a = 0; a < 3; ++a) scene.log_scales[3 * i + a] = std::log(1.6) + 0.2 * u(rng);  // sigma >= 6 px
+    scene.opacity_logits[i] = 0.4 * u(rng);  // opacity 0.4 .. 0.6
+    for (int c = 0; c < 3; ++c) scene.sh[3 * i + c] = u(rng);
+  }
+  for (ScaleOffset mode : {ScaleOffset::log, ScaleOffset::additive}) {
+    INFO("scale offsets " << (mode == ScaleOffset::log ? "log" : "additive"));
+    TrainParams p = tiny_params(10);
+    p.deformable = true;
+    p.field.depth = 3;
+    p.field.width = 8;
+    p.field.head_init_scale = 1;  // offsets of order 0.1: every path of the chain carries gradient
+    p.field.scale_offset = mode;
+    Trainer<S> t(frames, scene, p);
+    std::vector<S> grad, unused;
+    const S L0 = t.deformed_loss_gradient(0, frame.time, grad);
+    REQUIRE(std::isfinite(L0));
+    auto& w = t.field()->parameters();
+    REQUIRE(grad.size() == w.size());
+    const auto& layers = t.field()->mlp().layers();
+    REQUIRE(layers.size() == 4);  // 3 hidden + the heads
+    // In each hidden layer three weights and a bias with a gradient (ReLU units
+    // dead for all five points have none) and one without, if any; every bias of
+    // the heads: dx (rows 0..2), dq (3..6), ds (7..9).
+    std::vector<std::size_t> picks;
+    for (std::size_t l = 0; l + 1 < layers.size(); ++l) {
+      const auto& L = layers[l];
+      int live_w = 0, live_b = 0, dead = 0;
+      for (std::size_t j = L.w; j < L.b; j += 7)
+        if (grad[j] != 0 && live_w < 3) { picks.push_back(j); ++live_w; }
+        else if (grad[j] == 0 && dead < 1) { picks.push_back(j); ++dead; }
+      for (std::size_t j = L.b; j < L.b + std::size_t(L.rows) && live_b < 1; ++j)
+        if (grad[j] != 0) { picks.push_back(j); ++live_b; }
+      INFO("layer " << l);
+      CHECK(live_w == 3);
+      CHECK(live_b == 1);
+    }
+    const auto& head = layers.back();
+    for (int r = 0; r < head.rows; ++r) picks.push_back(head.b + std::size_t(r));
+    double scale = 0;
+    for (std::size_t j : picks) scale = std::max(scale, std::abs(grad[j]));
+    REQUIRE(scale > 0);
+    double worst = 0;
+    for (std::size_t j : picks) {
+      const S w0 = w[j], h = 1e-6;
+      w[j] = w0 + h;
+      const S Lp = t.deformed_loss_gradient(0, frame.time, unused);
+      w[j] = w0 - h;
+      const S Lm = t.deformed_loss_gradient(0, frame.time, unused);
+      w[j] = w0;
+      const double fd = (Lp - Lm) / (2 * h);
+      const double err = std::abs(fd - grad[j]) / std::max(std::abs(fd), 1e-2 * scale);
+      INFO("parameter " << j << ": analytic " << grad[j] << " fd " << fd);
+      CHECK(err < 1e-5);
+      worst = std::max(worst, err);
+    }
+    WARN("worst relative error " << worst << ", largest gradient " << scale);
+    // The hook leaves the model as it was.
+    std::vector<S> again;
+    CHECK(t.deformed_loss_gradient(0, frame.time, again) == L0);
+    CHECK(again == grad);
   }
 }

@@ -310,28 +310,15 @@ class Trainer {
       grad = &renderer_.backward(view, frame.camera, v_color_);
       last_.backward_ms = lap();
     } else {
-      const std::size_t n = scene_.size();
-      const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
-      lap();
-      field_->evaluate(means, frame.time + time_noise(it), field_ws_, offsets_, threads);
-      field_ms = lap();
-      const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data(),
-                                           offsets_.scale_offset);
-      out = &renderer_.render(view, frame.camera);
-      last_.render_ms = lap();
-      loss = combined_loss(out->color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
-      last_.loss_ms = lap();
-      const GaussianSceneGrad<Scalar>& vg = renderer_.backward(view, frame.camera, v_color_);
-      last_.backward_ms = lap();
-      // d loss / d offsets = the gradients w.r.t. the deformed view's parameters.
-      v_offsets_.resize(Eigen::Index(n));
-      v_offsets_.dx = Eigen::Map<const Matrix3X<Scalar>>(vg.means.data(), 3, Eigen::Index(n));
-      v_offsets_.dq = Eigen::Map<const Matrix4X<Scalar>>(vg.rotations.data(), 4, Eigen::Index(n));
-      view.scale_offset_gradients(vg, v_offsets_.ds.data());
-      v_field_.assign(field_->parameter_count(), Scalar(0));
-      field_->evaluate_vjp(field_ws_, v_offsets_, v_field_.data(), nullptr, threads);
-      view.base_gradients(vg, base_grad_);
+      double ms[4];
+      loss = deformed_forward_backward(frame, frame.time + time_noise(it), ms);
+      out = &renderer_.output();
+      field_ms = ms[0];
+      last_.render_ms = ms[1];
+      last_.loss_ms = ms[2];
+      last_.backward_ms = ms[3];
       grad = &base_grad_;
+      lap();
       Adam<Scalar>::update(field_adam_.group(g_field_), field_adam_.params(), field_->parameters().data(), v_field_.data(),
                   v_field_.size(), threads);
       field_ms += lap();
@@ -383,7 +370,60 @@ class Trainer {
     return last_;
   }
 
+  // Forward and backward of a deforming step on `frame` at time code t: the
+  // field's offsets, render, loss (v_color_), then d loss / d field parameters
+  // into v_field_ and the canonical Gaussians' gradients into base_grad_.
+  // ms: field (forward and vjp), render, loss and backward times.
+  LossTerms<Scalar> deformed_forward_backward(const TrainFrame<Scalar>& frame, Scalar t, double ms[4]) {
+    using clock = std::chrono::steady_clock;
+    auto lap = [last = clock::now()]() mutable {
+      const auto now = clock::now();
+      const double m = std::chrono::duration<double, std::milli>(now - last).count();
+      last = now;
+      return m;
+    };
+    const int threads = params_.threads;
+    const std::size_t n = scene_.size();
+    const Eigen::Map<const Matrix3X<Scalar>> means(scene_.means.data(), 3, Eigen::Index(n));
+    field_->evaluate(means, t, field_ws_, offsets_, threads);
+    ms[0] = lap();
+    const DeformedSceneView<Scalar> view(scene_, offsets_.dx.data(), offsets_.dq.data(), offsets_.ds.data(),
+                                         offsets_.scale_offset);
+    const RenderOutput<Scalar>& out = renderer_.render(view, frame.camera);
+    ms[1] = lap();
+    const LossTerms<Scalar> loss = combined_loss(out.color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim,
+                                                 threads);
+    ms[2] = lap();
+    const GaussianSceneGrad<Scalar>& vg = renderer_.backward(view, frame.camera, v_color_);
+    ms[3] = lap();
+    // d loss / d offsets = the gradients w.r.t. the deformed view's parameters.
+    v_offsets_.resize(Eigen::Index(n));
+    v_offsets_.dx = Eigen::Map<const Matrix3X<Scalar>>(vg.means.data(), 3, Eigen::Index(n));
+    v_offsets_.dq = Eigen::Map<const Matrix4X<Scalar>>(vg.rotations.data(), 4, Eigen::Index(n));
+    view.scale_offset_gradients(vg, v_offsets_.ds.data());
+    v_field_.assign(field_->parameter_count(), Scalar(0));
+    field_->evaluate_vjp(field_ws_, v_offsets_, v_field_.data(), nullptr, threads);
+    view.base_gradients(vg, base_grad_);
+    ms[0] += lap();
+    return loss;
+  }
+
  public:
+  // The loss of a deforming step on frame `frame` at time code t (no time noise)
+  // and, in v_field, its gradient w.r.t. the field's parameters: the step's own
+  // forward and backward, without optimiser steps or statistics. Lets a test
+  // check the chain image loss -> renderer -> offsets -> network.
+  Scalar deformed_loss_gradient(std::size_t frame, Scalar t, std::vector<Scalar>& v_field) {
+    ensure(field_ != nullptr, "Trainer::deformed_loss_gradient: the trainer is not deformable");
+    ensure(frame < frames_.size(), "Trainer::deformed_loss_gradient: frame ", frame, " of ", frames_.size());
+    double ms[4];
+    const LossTerms<Scalar> loss = deformed_forward_backward(frames_[frame], t, ms);
+    v_field = v_field_;
+    return loss.total;
+  }
+  // The field, writable (a test perturbing its weights); null when not deformable.
+  DeformationField<Scalar>* field() { return field_.get(); }
+
   // Renders the current model for a camera at time code t (deformed when the
   // deformation is active at the current iteration). The image is the renderer's
   // buffer: valid until the next render or training step.
