@@ -438,6 +438,8 @@ TEST_CASE("checkpoint streams: damaged structure is refused, not loaded", "[trai
       CHECK(std::string(e.what()).find(d.expect) != std::string::npos);
     }
     CHECK(r.iteration() == 0);
+  }
+}
 
 TEST_CASE("deformable step: d image loss / d network weights matches finite differences", "[train][trainer][grad]") {
   // One frame, a few large Gaussians whose 3-sigma squares cover the image and
