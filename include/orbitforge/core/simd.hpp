@@ -11,9 +11,12 @@
 // Vocabulary (B a batch type, M = mask_t<B>):
 //   B::size, B(value) broadcast, B::load_unaligned(p), b.store_unaligned(p),
 //   + - * / and unary -, comparisons < <= > >= giving M, masks combine with & | ~,
-//   fma(x, y, z) = x*y+z, exp, exp2_nonpositive, min, max, abs, sqrt, select(m, a, b),
+//   fma(x, y, z) = x*y+z, exp, log, exp2_nonpositive, min, max, abs, sqrt, ceil, floor,
+//   select(m, a, b),
 //   hadd(b) (sum of lanes; xsimd 8.1 has hadd, not reduce_add), any(m), all(m),
 //   hadd_rows(rows, count, out): out[i] = hadd(rows[i]) for many rows at once.
+//   transpose_block<B>(in, in_stride, out, out_stride): a B::size x B::size block,
+//   out[c * out_stride + r] = in[r * in_stride + c] (row-major blocks of scalars).
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -71,6 +74,9 @@ struct scalar_batch {
 
 template <class T> inline scalar_batch<T> fma(scalar_batch<T> x, scalar_batch<T> y, scalar_batch<T> z) { return std::fma(x.v, y.v, z.v); }
 template <class T> inline scalar_batch<T> exp(scalar_batch<T> x) { return std::exp(x.v); }
+template <class T> inline scalar_batch<T> log(scalar_batch<T> x) { return std::log(x.v); }
+template <class T> inline scalar_batch<T> ceil(scalar_batch<T> x) { return std::ceil(x.v); }
+template <class T> inline scalar_batch<T> floor(scalar_batch<T> x) { return std::floor(x.v); }
 template <class T> inline scalar_batch<T> min(scalar_batch<T> x, scalar_batch<T> y) { return y.v < x.v ? y.v : x.v; }
 template <class T> inline scalar_batch<T> max(scalar_batch<T> x, scalar_batch<T> y) { return x.v < y.v ? y.v : x.v; }
 template <class T> inline scalar_batch<T> abs(scalar_batch<T> x) { return std::abs(x.v); }
@@ -98,6 +104,9 @@ template <class T, class A> inline xsimd::batch<T, A> fma(const xsimd::batch<T, 
   return xsimd::fma(x, y, z);
 }
 template <class T, class A> inline xsimd::batch<T, A> exp(const xsimd::batch<T, A>& x) { return xsimd::exp(x); }
+template <class T, class A> inline xsimd::batch<T, A> log(const xsimd::batch<T, A>& x) { return xsimd::log(x); }
+template <class T, class A> inline xsimd::batch<T, A> ceil(const xsimd::batch<T, A>& x) { return xsimd::ceil(x); }
+template <class T, class A> inline xsimd::batch<T, A> floor(const xsimd::batch<T, A>& x) { return xsimd::floor(x); }
 template <class T, class A> inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::min(x, y); }
 template <class T, class A> inline xsimd::batch<T, A> max(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::max(x, y); }
 template <class T, class A> inline xsimd::batch<T, A> abs(const xsimd::batch<T, A>& x) { return xsimd::abs(x); }
@@ -173,6 +182,45 @@ inline void hadd_rows(const xsimd::batch<T, A>* rows, int count, T* out) {
   for (int i = 0; i < count; ++i) out[i] = xsimd::hadd(rows[i]);
 }
 #endif
+
+// Transposes a B::size x B::size block of scalars (strides in elements). 16 x 16
+// floats by a 4-step shuffle network on AVX-512 (64 shuffles instead of 256
+// scalar moves); a plain loop otherwise.
+template <class B>
+inline void transpose_block(const typename B::value_type* in, std::size_t in_stride, typename B::value_type* out,
+                            std::size_t out_stride) {
+#if ORBITFORGE_SIMD_ENABLED && defined(__AVX512F__)
+  if constexpr (std::is_same<typename B::value_type, float>::value && B::size == 16) {
+    __m512 r[16], t[16];
+    for (int i = 0; i < 16; ++i) r[i] = _mm512_loadu_ps(in + std::size_t(i) * in_stride);
+    for (int i = 0; i < 8; ++i) {  // 32-bit interleave of row pairs
+      t[2 * i] = _mm512_unpacklo_ps(r[2 * i], r[2 * i + 1]);
+      t[2 * i + 1] = _mm512_unpackhi_ps(r[2 * i], r[2 * i + 1]);
+    }
+    for (int i = 0; i < 4; ++i) {  // 64-bit interleave
+      const __m512d a = _mm512_castps_pd(t[4 * i]), b = _mm512_castps_pd(t[4 * i + 1]);
+      const __m512d c = _mm512_castps_pd(t[4 * i + 2]), d = _mm512_castps_pd(t[4 * i + 3]);
+      r[4 * i + 0] = _mm512_castpd_ps(_mm512_unpacklo_pd(a, c));
+      r[4 * i + 1] = _mm512_castpd_ps(_mm512_unpackhi_pd(a, c));
+      r[4 * i + 2] = _mm512_castpd_ps(_mm512_unpacklo_pd(b, d));
+      r[4 * i + 3] = _mm512_castpd_ps(_mm512_unpackhi_pd(b, d));
+    }
+    for (int i = 0; i < 2; ++i)  // 128-bit lanes, two steps
+      for (int j = 0; j < 4; ++j) {
+        t[8 * i + j] = _mm512_shuffle_f32x4(r[8 * i + j], r[8 * i + j + 4], 0x88);
+        t[8 * i + j + 4] = _mm512_shuffle_f32x4(r[8 * i + j], r[8 * i + j + 4], 0xdd);
+      }
+    for (int j = 0; j < 8; ++j) {
+      r[j] = _mm512_shuffle_f32x4(t[j], t[j + 8], 0x88);
+      r[j + 8] = _mm512_shuffle_f32x4(t[j], t[j + 8], 0xdd);
+    }
+    for (int i = 0; i < 16; ++i) _mm512_storeu_ps(out + std::size_t(i) * out_stride, r[i]);
+    return;
+  }
+#endif
+  for (std::size_t r = 0; r < B::size; ++r)
+    for (std::size_t c = 0; c < B::size; ++c) out[c * out_stride + r] = in[r * in_stride + c];
+}
 
 // 2^x for x <= 0 (values below the floor give 2^floor, which no caller can tell
 // from 0: 2^-125 in float). 2^x = 2^n 2^f, n = round(x), f = x - n in

@@ -23,6 +23,11 @@
 //                                                        //   colour channel c < 3
 //   };
 //
+// Optionally, a hint that Gaussians first .. first + count - 1 are read soon
+// (project_scene calls it a few SIMD batches ahead; it must not read anything,
+// only prefetch, e.g. with __builtin_prefetch):
+//     void prefetch(std::size_t first, std::size_t count) const;
+//
 // Gradients (Renderer::backward) are with respect to exactly what the adaptor
 // returns: d/d(log scale) for ScaleMode::log, d/d(scale) for activated, d/d of
 // the quaternion as returned (before normalisation), d/d(opacity logit).
@@ -52,6 +57,12 @@ template <class T>
 struct has_scalar_type<T, void_t<typename T::scalar_type>>
     : std::bool_constant<std::is_same<typename T::scalar_type, float>::value ||
                          std::is_same<typename T::scalar_type, double>::value> {};
+
+template <class T, class = void>
+struct has_prefetch : std::false_type {};
+template <class T>
+struct has_prefetch<T, void_t<decltype(std::declval<const T&>().prefetch(std::size_t(), std::size_t()))>>
+    : std::true_type {};
 
 template <class T, class = void>
 struct has_scale_mode : std::false_type {};
