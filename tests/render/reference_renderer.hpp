@@ -195,7 +195,7 @@ double max_abs_diff(const Image<T>& a, const Image<T>& b) {
 // ---------------------------------------------------------------------------
 // Reference projection and SH colour, written from the formulas of
 // docs/conventions.md in double precision; it shares no code with
-// splat/project.hpp or splat/sh.hpp, so a bug there cannot cancel out.
+// splat/project*.hpp or splat/sh.hpp, so a bug there cannot cancel out.
 
 // Real SH basis, degree <= 3, at the unit direction d, with the normalisation
 // constants derived from their closed forms and the sign pattern of 3DGS.

@@ -9,7 +9,7 @@
 //   sh             [N][K][3] spherical-harmonic colour coefficients, K = (degree+1)^2,
 //                          coefficient-major then RGB; sh[i][0] is the DC term.
 //
-// The renderer reads scenes through the adaptor contract in splat/project.hpp, which
+// The renderer reads scenes through the adaptor contract in splat/scene_adaptor.hpp, which
 // GaussianScene satisfies; a host renderer can satisfy it with its own storage.
 #include <cmath>
 #include <cstddef>

@@ -31,7 +31,7 @@
 // Gradients (Renderer::backward) are with respect to exactly what the adaptor
 // returns: d/d(log scale) for ScaleMode::log, d/d(scale) for activated, d/d of
 // the quaternion as returned (before normalisation), d/d(opacity logit).
-// SceneView (splat/project.hpp) adapts a GaussianScene; tests/splat/
+// SceneView (splat/scene_view.hpp) adapts a GaussianScene; tests/splat/
 // test_scene_adaptor.cpp and examples/host_adaptor.cpp write one over an array
 // of structs in double precision.
 //

@@ -1,0 +1,378 @@
+#pragma once
+// The batch path of project_scene: simd::native_batch<Scalar>::size Gaussians at
+// a time. Each lane's parameters are read through the adaptor into small
+// structure-of-arrays buffers (any adaptor works), the projection runs in SIMD,
+// and the results go to ProjectedSplats. project_gaussian stays the reference:
+// the batch path gives the same culling reasons, radii and rectangles, and values
+// within float rounding of it. Where a decision of the reference (near plane,
+// opacity threshold, a ceil/floor of a rectangle bound or of the radius) lies
+// within a bound on the rounding difference between the two (operations in
+// another order, xsimd's exp and log for std's), project_gaussian makes that
+// decision for the lane; where the 2D covariance is degenerate or overflows, or
+// the scales overflow once activated, it gives the lane's values too. That is
+// rare (about 2 in 100 Gaussians of the benchmark scene) and keeps the decisions
+// identical.
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+
+#include "orbitforge/core/simd.hpp"
+#include "orbitforge/splat/project_gaussian.hpp"
+#include "orbitforge/splat/projected.hpp"
+
+namespace orbitforge {
+
+namespace detail {
+
+// Each lane's parameters as one row (mean 3, quaternion 4, scale 3 as the
+// adaptor returns it, opacity logit, padding, SH [3 k + c]), then transposed
+// block by block into one row per parameter and a column per lane.
+template <class Scalar, int W>
+struct GaussianLanes {
+  static constexpr int kMean = 0, kQuat = 3, kScale = 7, kLogit = 10, kSh = 16, kRow = 64;
+  alignas(64) Scalar aos[W][kRow];
+  alignas(64) Scalar soa[kRow][W];
+  const Scalar* operator[](int row) const { return soa[row]; }
+};
+
+// Lanes j < count <- Gaussians i0 + j; the other lanes get harmless values.
+template <class B, class Scene, class Scalar, int W>
+inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_count,
+                         GaussianLanes<Scalar, W>& L) {
+  using G = GaussianLanes<Scalar, W>;
+  for (int j = 0; j < count; ++j) {
+    const std::size_t i = i0 + std::size_t(j);
+    Scalar* row = L.aos[j];
+    scene.mean(i, row + G::kMean);
+    scene.rotation(i, row + G::kQuat);
+    scene.scale(i, row + G::kScale);
+    row[G::kLogit] = scene.opacity_logit(i);
+    Scalar* sh = row + G::kSh;
+    for (int k = 0; k < k_count; ++k)
+      for (int c = 0; c < 3; ++c) sh[3 * k + c] = scene.sh(i, k, c);
+  }
+  for (int j = count; j < W; ++j)
+    for (int r = 0; r < G::kRow; ++r) L.aos[j][r] = Scalar(r == G::kQuat);
+  // Rows used: the parameters, then the SH rows.
+  const int rows = G::kSh + 3 * k_count;
+  for (int r0 = 0; r0 < rows; r0 += W) simd::transpose_block<B>(&L.aos[0][r0], G::kRow, &L.soa[r0][0], W);
+}
+
+// Distance from x to the nearest integer.
+template <class B>
+inline B dist_to_int(const B& x) { return simd::abs(x - simd::round_nearest(x)); }
+
+// Outcome codes of a lane: CullReason values; kLaneScalar: project_gaussian
+// gives everything (the batch values are unusable: overflow, degenerate 2D
+// covariance); kLaneDecision: project_gaussian gives the decision (reason,
+// radius, rectangle), the values are the batch's (so that they never depend on
+// a decision, e.g. an image on tight_extents).
+constexpr int kLaneScalar = 5, kLaneDecision = 6;
+
+// GCC 12 reports -Wuninitialized inside avx512fintrin.h for xsimd's AVX-512
+// kernels once inlined here (the unmasked intrinsics pass _mm512_undefined_*():
+// a false positive).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#endif
+// Projects Gaussians i0 .. i0 + count - 1 (count <= B::size) into `out`,
+// counting reasons into local[5].
+template <class B, class Scene>
+inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B::value_type>& cam, int degree,
+                          std::size_t i0, int count, GaussianLanes<typename B::value_type, int(B::size)>& L,
+                          ProjectedSplats<typename B::value_type>& out, std::size_t local[5]) {
+  using Scalar = typename B::value_type;
+  using M = simd::mask_t<B>;
+  constexpr int W = int(B::size);
+  const int k_count = sh_coefficient_count(degree);
+  gather_lanes<B>(scene, i0, count, k_count, L);
+  using G = GaussianLanes<Scalar, W>;
+
+  const B zero(Scalar(0)), one(Scalar(1)), half(Scalar(0.5));
+  // The rounding difference of a short chain of operations evaluated in another
+  // order, relative to the sum of the magnitudes of its terms (4 units in the
+  // last place; the bounds below are sums of such terms, so generous: in 10^6
+  // random Gaussians even 1/64 of this let no decision differ).
+  const B tol(Scalar(4) * std::numeric_limits<Scalar>::epsilon());
+  auto ld = [](const Scalar* p) { return B::load_unaligned(p); };
+
+  // Non-finite inputs (x * 0 is NaN only for NaN and inf): certain, as in
+  // project_gaussian, which checks the activated scales (exp(-inf) = 0 is fine).
+  B p0 = zero, p1 = zero, p2 = zero, p3 = zero;
+  for (int a = 0; a < 3; ++a) p0 = p0 + ld(L[G::kMean + a]) * zero;
+  for (int a = 0; a < 4; ++a) p1 = p1 + ld(L[G::kQuat + a]) * zero;
+  p3 = p3 + ld(L[G::kLogit]) * zero;
+  for (int r = 0; r < 3 * k_count; r += 4) {
+    p0 = p0 + ld(L[G::kSh + r]) * zero;
+    if (r + 1 < 3 * k_count) p1 = p1 + ld(L[G::kSh + r + 1]) * zero;
+    if (r + 2 < 3 * k_count) p2 = p2 + ld(L[G::kSh + r + 2]) * zero;
+    if (r + 3 < 3 * k_count) p3 = p3 + ld(L[G::kSh + r + 3]) * zero;
+  }
+  B s[3], raw_poison = zero, act_poison = zero;
+  for (int a = 0; a < 3; ++a) {
+    const B raw = ld(L[G::kScale + a]);
+    s[a] = Scene::scale_mode == ScaleMode::log ? simd::exp(raw) : raw;
+    raw_poison = raw_poison + raw * zero;
+    act_poison = act_poison + s[a] * zero;
+  }
+  const M bad_act = ~(act_poison <= zero);
+  const M bad_in = ~((p0 + p1) + (p2 + p3) <= zero) | (bad_act & ~(raw_poison <= zero));
+  M decided = bad_in;
+  // Finite log-scales whose exp overflows (at the threshold xsimd's exp and
+  // std::exp may disagree): the reference decides.
+  M scalar = ~bad_in & bad_act;
+  decided = decided | scalar;
+  // Lanes where m holds and nothing is decided yet go to the reference.
+  auto defer = [&](const M& m) {
+    const M d = ~decided & m;
+    scalar = scalar | d;
+    decided = decided | d;
+  };
+
+  // Camera space, and bounds on its rounding difference (et: absolute).
+  const B x = ld(L[G::kMean]), y = ld(L[G::kMean + 1]), z = ld(L[G::kMean + 2]);
+  B t[3], et[3];
+  for (int k = 0; k < 3; ++k) {
+    t[k] = B(cam.R(k, 0)) * x + B(cam.R(k, 1)) * y + B(cam.R(k, 2)) * z + B(cam.t[k]);
+    et[k] = tol * (B(std::abs(cam.R(k, 0))) * simd::abs(x) + B(std::abs(cam.R(k, 1))) * simd::abs(y) +
+                   B(std::abs(cam.R(k, 2))) * simd::abs(z) + B(std::abs(cam.t[k])));
+  }
+  const B near(cam.near_plane);
+  defer(simd::abs(t[2] - near) <= et[2]);
+  const M cull_near = ~decided & (t[2] <= near);
+  decided = decided | cull_near;
+
+  // Rotation of q / |q| and Sigma = (R diag(s)) (R diag(s))^T.
+  B qw = ld(L[G::kQuat]), qx = ld(L[G::kQuat + 1]), qy = ld(L[G::kQuat + 2]), qz = ld(L[G::kQuat + 3]);
+  const B qinv = one / simd::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
+  qw = qw * qinv; qx = qx * qinv; qy = qy * qinv; qz = qz * qinv;
+  const B two(Scalar(2));
+  B Mq[3][3];
+  Mq[0][0] = (one - two * (qy * qy + qz * qz)) * s[0];
+  Mq[0][1] = (two * (qx * qy - qw * qz)) * s[1];
+  Mq[0][2] = (two * (qx * qz + qw * qy)) * s[2];
+  Mq[1][0] = (two * (qx * qy + qw * qz)) * s[0];
+  Mq[1][1] = (one - two * (qx * qx + qz * qz)) * s[1];
+  Mq[1][2] = (two * (qy * qz - qw * qx)) * s[2];
+  Mq[2][0] = (two * (qx * qz - qw * qy)) * s[0];
+  Mq[2][1] = (two * (qy * qz + qw * qx)) * s[1];
+  Mq[2][2] = (one - two * (qx * qx + qy * qy)) * s[2];
+  B S[3][3];
+  for (int r = 0; r < 3; ++r)
+    for (int c = r; c < 3; ++c) S[r][c] = S[c][r] = Mq[r][0] * Mq[c][0] + Mq[r][1] * Mq[c][1] + Mq[r][2] * Mq[c][2];
+
+  // EWA Jacobian with the x/z, y/z clamp; T = J W; cov2d = T Sigma T^T + eps2d I.
+  const B iz = one / t[2], iz2 = iz * iz;
+  const B lx(cam.lim_x), ly(cam.lim_y), fx(cam.fx), fy(cam.fy);
+  const B clx = simd::min(lx, simd::max(-lx, t[0] * iz)), cly = simd::min(ly, simd::max(-ly, t[1] * iz));
+  const B j00 = fx * iz, j02 = -fx * (clx * t[2]) * iz2, j11 = fy * iz, j12 = -fy * (cly * t[2]) * iz2;
+  B T0[3], T1[3];
+  for (int c = 0; c < 3; ++c) {
+    T0[c] = j00 * B(cam.R(0, c)) + j02 * B(cam.R(2, c));
+    T1[c] = j11 * B(cam.R(1, c)) + j12 * B(cam.R(2, c));
+  }
+  B TS0[3], TS1[3];
+  for (int c = 0; c < 3; ++c) {
+    TS0[c] = T0[0] * S[0][c] + T0[1] * S[1][c] + T0[2] * S[2][c];
+    TS1[c] = T1[0] * S[0][c] + T1[1] * S[1][c] + T1[2] * S[2][c];
+  }
+  const B eps2d(cam.eps2d);
+  const B cov0 = TS0[0] * T0[0] + TS0[1] * T0[1] + TS0[2] * T0[2] + eps2d;
+  const B cov1 = TS0[0] * T1[0] + TS0[1] * T1[1] + TS0[2] * T1[2];
+  const B cov2 = TS1[0] * T1[0] + TS1[1] * T1[1] + TS1[2] * T1[2] + eps2d;
+  const B det = cov0 * cov2 - cov1 * cov1;
+  const B idet = one / det;
+  const B conic0 = cov2 * idet, conic1 = -cov1 * idet, conic2 = cov0 * idet;
+
+  // Bounds on the rounding differences: rz relative in t_z; rJ relative in J
+  // (w.r.t. its norm); ecov, edet absolute.
+  const B rz = et[2] * iz;
+  const B rJ = rz * (one + B(Scalar(3)) * simd::max(lx, ly)) + (et[0] + et[1]) * iz + tol;
+  const B smax2 = simd::max(s[0] * s[0], simd::max(s[1] * s[1], s[2] * s[2]));
+  const B ecov = smax2 * (j00 * j00 + j02 * j02 + j11 * j11 + j12 * j12) * (B(Scalar(4)) * rJ + B(Scalar(4)) * tol) +
+                 tol * eps2d;
+  const B acov1 = simd::abs(cov1);
+  const B edet = ecov * (cov0 + cov2 + two * acov1) + tol * (cov0 * cov2 + cov1 * cov1);
+  // Degenerate, non-finite or overflowing 2D covariances: the reference decides.
+  const B big(std::numeric_limits<Scalar>::max() / Scalar(16));
+  const M det_bad = ~((det > edet) & (det < big) & ((conic0 * zero + conic1 * zero + conic2 * zero) <= zero));
+  defer(det_bad);
+
+  const B o = one / (one + simd::exp(-ld(L[G::kLogit])));
+  const B amin(cam.alpha_min);
+  const B eo = tol * o;
+  defer(simd::abs(o - amin) <= eo);
+  const M cull_faint_o = ~decided & (o < amin);
+  decided = decided | cull_faint_o;
+
+  const B u = fx * t[0] * iz + B(cam.cx), v = fy * t[1] * iz + B(cam.cy);
+  const B eu = two * fx * iz * (et[0] + simd::abs(t[0]) * rz) + tol * (simd::abs(u) + B(std::abs(cam.cx)));
+  const B ev = two * fy * iz * (et[1] + simd::abs(t[1]) * rz) + tol * (simd::abs(v) + B(std::abs(cam.cy)));
+  const B lim_int(Scalar(1 << 22));  // beyond: rectangle arithmetic left to the reference
+  defer(~((simd::abs(u) < lim_int) & (simd::abs(v) < lim_int)));
+
+  const B mid = half * (cov0 + cov2);
+  const B disc = mid * mid - det;
+  const B lambda = mid + simd::sqrt(simd::max(zero, disc));
+  const B edisc = ecov * (cov0 + cov2) + edet + tol * (mid * mid + simd::abs(det));
+  // |sqrt(a) - sqrt(b)| <= min(sqrt(|a - b|), |a - b| / sqrt(a)).
+  const B elam = ecov + simd::min(simd::sqrt(edisc), edisc / simd::sqrt(simd::max(disc, zero))) + tol * lambda;
+  const B sr = B(Scalar(3)) * simd::sqrt(lambda);
+  const B esr = B(Scalar(3)) * elam / simd::sqrt(lambda) + tol * sr;
+  defer(~(sr < lim_int) | (dist_to_int(sr) <= esr));
+  const B r = simd::ceil(sr);
+
+  // Pixel i is inside when |i + 0.5 - u| <= r.
+  const B W1(Scalar(cam.width - 1)), H1(Scalar(cam.height - 1));
+  const B X0 = u - r - half, X1 = u + r - half, Y0 = v - r - half, Y1 = v + r - half;
+  const B ex = eu + tol * (simd::abs(u) + r), ey = ev + tol * (simd::abs(v) + r);
+  defer(((dist_to_int(X0) <= ex) & (X0 > -one - ex)) | ((dist_to_int(X1) <= ex) & (X1 < W1 + one + ex)) |
+        ((dist_to_int(Y0) <= ey) & (Y0 > -one - ey)) | ((dist_to_int(Y1) <= ey) & (Y1 < H1 + one + ey)));
+  B x0 = simd::max(zero, simd::ceil(X0)), x1 = simd::min(W1, simd::floor(X1));
+  B y0 = simd::max(zero, simd::ceil(Y0)), y1 = simd::min(H1, simd::floor(Y1));
+  const M cull_outside = ~decided & ((x0 > x1) | (y0 > y1));
+  decided = decided | cull_outside;
+
+  M cull_faint = cull_faint_o;
+  if (cam.tight_extents) {
+    // alpha >= alpha_min only where d^T conic d <= 2 ln(o / alpha_min), with the
+    // reference's slack.
+    const B lo = simd::log(o / amin);
+    const B tt = lo * B(Scalar(1 + 1e-3)) + B(Scalar(1e-3));
+    const B ett = tol * (simd::abs(lo) + two);
+    const B hx = simd::sqrt(two * tt * cov0), hy = simd::sqrt(two * tt * cov2);
+    const B eh = half * (ett / tt + ecov / simd::min(cov0, cov2)) + tol;
+    const B Xt0 = u - hx - half, Xt1 = u + hx - half, Yt0 = v - hy - half, Yt1 = v + hy - half;
+    const B ext = eu + hx * eh + tol * (simd::abs(u) + hx), eyt = ev + hy * eh + tol * (simd::abs(v) + hy);
+    defer(((dist_to_int(Xt0) <= ext) & (Xt0 > x0 - one - ext)) |
+          ((dist_to_int(Xt1) <= ext) & (Xt1 < x1 + one + ext)) |
+          ((dist_to_int(Yt0) <= eyt) & (Yt0 > y0 - one - eyt)) |
+          ((dist_to_int(Yt1) <= eyt) & (Yt1 < y1 + one + eyt)));
+    x0 = simd::max(x0, simd::ceil(Xt0));
+    x1 = simd::min(x1, simd::floor(Xt1));
+    y0 = simd::max(y0, simd::ceil(Yt0));
+    y1 = simd::min(y1, simd::floor(Yt1));
+    const M empty = ~decided & ((x0 > x1) | (y0 > y1));
+    cull_faint = cull_faint | empty;
+    decided = decided | empty;
+  }
+
+  // SH colour in the direction mean - camera centre, + 0.5, clamped at 0.
+  using C = ShConstants<Scalar>;
+  B cr = zero, cg = zero, cb = zero;
+  auto acc = [&](int k, const B& basis) {
+    cr = cr + basis * ld(L[G::kSh + 3 * k + 0]);
+    cg = cg + basis * ld(L[G::kSh + 3 * k + 1]);
+    cb = cb + basis * ld(L[G::kSh + 3 * k + 2]);
+  };
+  acc(0, B(C::C0));
+  if (degree > 0) {
+    const B dx = x - B(cam.center[0]), dy = y - B(cam.center[1]), dz = z - B(cam.center[2]);
+    const B dinv = one / simd::sqrt(dx * dx + dy * dy + dz * dz);
+    const B ux = dx * dinv, uy = dy * dinv, uz = dz * dinv;
+    acc(1, -B(C::C1) * uy);
+    acc(2, B(C::C1) * uz);
+    acc(3, -B(C::C1) * ux);
+    if (degree > 1) {
+      const B xx = ux * ux, yy = uy * uy, zz = uz * uz, xy = ux * uy, yz = uy * uz, xz = ux * uz;
+      acc(4, B(C::C2[0]) * xy);
+      acc(5, B(C::C2[1]) * yz);
+      acc(6, B(C::C2[2]) * (two * zz - xx - yy));
+      acc(7, B(C::C2[3]) * xz);
+      acc(8, B(C::C2[4]) * (xx - yy));
+      if (degree > 2) {
+        const B three(Scalar(3)), four(Scalar(4));
+        acc(9, B(C::C3[0]) * uy * (three * xx - yy));
+        acc(10, B(C::C3[1]) * xy * uz);
+        acc(11, B(C::C3[2]) * uy * (four * zz - xx - yy));
+        acc(12, B(C::C3[3]) * uz * (two * zz - three * xx - three * yy));
+        acc(13, B(C::C3[4]) * ux * (four * zz - xx - yy));
+        acc(14, B(C::C3[5]) * uz * (xx - yy));
+        acc(15, B(C::C3[6]) * ux * (xx - three * yy));
+      }
+    }
+  }
+  cr = cr + half;
+  cg = cg + half;
+  cb = cb + half;
+  cr = simd::select(cr < zero, zero, cr);
+  cg = simd::select(cg < zero, zero, cg);
+  cb = simd::select(cb < zero, zero, cb);
+
+  // Outcome per lane.
+  B code = simd::select(bad_in, B(Scalar(int(CullReason::nonfinite))), zero);
+  code = simd::select(scalar, B(Scalar(kLaneDecision)), code);
+  code = simd::select(scalar & (bad_act | det_bad), B(Scalar(kLaneScalar)), code);
+  code = simd::select(cull_near, B(Scalar(int(CullReason::near))), code);
+  code = simd::select(cull_faint, B(Scalar(int(CullReason::faint))), code);
+  code = simd::select(cull_outside, B(Scalar(int(CullReason::outside))), code);
+  const B radius = simd::max(one, r);
+
+  // Values (unspecified for culled lanes): straight into `out` for whole batches.
+  const B* vals[10] = {&u, &v, &conic0, &conic1, &conic2, &o, &cr, &cg, &cb, &t[2]};
+  Scalar* dst[10] = {out.mean_x.data(), out.mean_y.data(), out.conic_a.data(), out.conic_b.data(),
+                     out.conic_c.data(), out.opacity.data(), out.color_r.data(), out.color_g.data(),
+                     out.color_b.data(), out.depth.data()};
+  if (count == W) {
+    for (int f = 0; f < 10; ++f) vals[f]->store_unaligned(dst[f] + i0);
+  } else {
+    alignas(64) Scalar buf[W];
+    for (int f = 0; f < 10; ++f) {
+      vals[f]->store_unaligned(buf);
+      for (int j = 0; j < count; ++j) dst[f][i0 + std::size_t(j)] = buf[j];
+    }
+  }
+  alignas(64) Scalar codes[W], rad[W], rx0[W], ry0[W], rx1[W], ry1[W];
+  code.store_unaligned(codes);
+  radius.store_unaligned(rad);
+  x0.store_unaligned(rx0);
+  y0.store_unaligned(ry0);
+  x1.store_unaligned(rx1);
+  y1.store_unaligned(ry1);
+  for (int j = 0; j < count; ++j) {
+    const std::size_t i = i0 + std::size_t(j);
+    const int why = int(codes[j]);
+    if (why >= kLaneScalar) {
+      Scalar sh_buf[48];
+      GaussianParams<Scalar> g;
+      Splat<Scalar> sp;
+      gather_gaussian(scene, i, degree, g, sh_buf);
+      const CullReason w = project_gaussian(cam, g, sp);
+      ++local[int(w)];
+      out.radius[i] = sp.radius;
+      if (w != CullReason::none) continue;
+      out.rect_x0[i] = sp.rect_x0;
+      out.rect_y0[i] = sp.rect_y0;
+      out.rect_x1[i] = sp.rect_x1;
+      out.rect_y1[i] = sp.rect_y1;
+      if (why == kLaneDecision) continue;
+      out.mean_x[i] = sp.mean_x;
+      out.mean_y[i] = sp.mean_y;
+      out.conic_a[i] = sp.conic_a;
+      out.conic_b[i] = sp.conic_b;
+      out.conic_c[i] = sp.conic_c;
+      out.opacity[i] = sp.opacity;
+      out.color_r[i] = sp.color[0];
+      out.color_g[i] = sp.color[1];
+      out.color_b[i] = sp.color[2];
+      out.depth[i] = sp.depth;
+      continue;
+    }
+    ++local[why];
+    out.radius[i] = why == 0 ? std::int32_t(rad[j]) : 0;
+    if (why != 0) continue;
+    out.rect_x0[i] = std::int32_t(rx0[j]);
+    out.rect_y0[i] = std::int32_t(ry0[j]);
+    out.rect_x1[i] = std::int32_t(rx1[j]);
+    out.rect_y1[i] = std::int32_t(ry1[j]);
+  }
+}
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic pop
+#endif
+}  // namespace detail
+
+}  // namespace orbitforge
