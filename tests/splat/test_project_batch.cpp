@@ -185,6 +185,24 @@ void check_same(const ProjectionStats& a, const ProjectionStats& b) {
   CHECK(a.culled_nonfinite == b.culled_nonfinite);
 }
 
+// project_scene on `view` against the reference: the same decisions, values
+// within rounding. Returns project_scene's statistics.
+template <class S, class Scene, class Ref>
+ProjectionStats check_project_scene(const Scene& view, const Camera<S>& cam, const ProjectionParams& params,
+                                    const Ref& ref, int threads) {
+  const auto pc = ProjectionCamera<S>::make(cam, params);
+  ProjectedSplats<S> out;
+  ProjectionStats st;
+  project_scene(view, cam, params, out, &st, threads);
+  check_same<S>(st, ref.stats);
+  const Mismatch m = compare(out, ref, pc);
+  CAPTURE(m.worst);
+  CHECK(m.radius == 0);
+  CHECK(m.rect == 0);
+  CHECK(m.value == 0);
+  return st;
+}
+
 }  // namespace project_batch_test
 
 using namespace project_batch_test;
@@ -206,16 +224,7 @@ TEMPLATE_TEST_CASE("batch projection: same culling, radii and rectangles as proj
         const auto scene = mixed_scene<S>(rng, n, degree, cam);
         const SceneView<S> view(scene);
         const auto ref = reference(view, pc);
-
-        ProjectedSplats<S> out;
-        ProjectionStats st;
-        project_scene(view, cam, params, out, &st, n > 100 ? 2 : 1);
-        check_same<S>(st, ref.stats);
-        const Mismatch m = compare(out, ref, pc);
-        CAPTURE(m.worst);
-        CHECK(m.radius == 0);
-        CHECK(m.rect == 0);
-        CHECK(m.value == 0);
+        check_project_scene(view, cam, params, ref, n > 100 ? 2 : 1);
 
         // The one-lane kernel (what ORBITFORGE_NO_SIMD builds) agrees as well.
         ProjectedSplats<S> out1;
@@ -244,16 +253,8 @@ TEMPLATE_TEST_CASE("batch projection through an activated-scale adaptor (signed 
     const DeformedSceneView<S> view(base, dx.data(), dq.data(), ds.data());
     ProjectionParams params;
     const auto pc = ProjectionCamera<S>::make(cam, params);
-    const auto ref = reference(view, pc);
-    ProjectedSplats<S> out;
-    ProjectionStats st;
-    project_scene(view, cam, params, out, &st, 1);
-    check_same<S>(st, ref.stats);
-    const Mismatch m = compare(out, ref, pc);
-    CAPTURE(degree, m.worst);
-    CHECK(m.radius == 0);
-    CHECK(m.rect == 0);
-    CHECK(m.value == 0);
+    CAPTURE(degree);
+    check_project_scene(view, cam, params, reference(view, pc), 1);
   }
 }
 
@@ -273,15 +274,6 @@ TEST_CASE("batch projection: a large random scene decides every Gaussian as the 
   const SceneView<S> view(scene);
   ProjectionParams params;
   const auto pc = ProjectionCamera<S>::make(cam, params);
-  const auto ref = reference(view, pc);
-  ProjectedSplats<S> out;
-  ProjectionStats st;
-  project_scene(view, cam, params, out, &st, 2);
-  check_same<S>(st, ref.stats);
-  const Mismatch m = compare(out, ref, pc);
-  CAPTURE(m.worst);
-  CHECK(m.radius == 0);
-  CHECK(m.rect == 0);
-  CHECK(m.value == 0);
+  const ProjectionStats st = check_project_scene(view, cam, params, reference(view, pc), 2);
   CHECK(st.visible > n / 2);
 }

@@ -6,6 +6,7 @@
 #include "orbitforge/pipeline/synthetic_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
+#include "train/synthetic_frames.hpp"
 
 using namespace orbitforge;
 
@@ -27,25 +28,7 @@ TEST_CASE("coarse-to-fine: the level falls from coarse_levels to 0 over coarse_f
 }
 
 TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-size training", "[train][coarse]") {
-  SyntheticInputParams sp;
-  sp.frames = sp.source_frames = 6;
-  sp.width = 64;
-  sp.height = 48;
-  sp.focal = 60;
-  sp.object_gaussians = 300;
-  sp.ground_gaussians = 150;
-  const auto in = make_synthetic_input<float>(sp);
-  RenderParams<float> rp;
-  rp.threads = 2;
-  rp.background = {1, 1, 1};
-  Renderer<float> r(rp);
-  std::vector<TrainFrame<float>> frames;
-  for (int i = 0; i < sp.frames; ++i) {
-    TrainFrame<float> f;
-    f.camera = in.true_cameras[std::size_t(i)];
-    f.image = r.render(SceneView<float>(in.scene), f.camera).color;
-    frames.push_back(std::move(f));
-  }
+  const auto frames = orbitforge_test::tiny_frames<float>(6, 48, 64);
   auto fit = [&](int levels) {
     std::vector<Camera<float>> cams;
     for (const auto& f : frames) cams.push_back(f.camera);
@@ -65,7 +48,7 @@ TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-siz
       if (pr.image_level > 0) ++coarse_steps;
     }
     double psnr_sum = 0;
-    for (const auto& f : frames) psnr_sum += psnr(clamp01(t.render(f.camera, 0)), f.image);
+    for (const auto& f : frames) psnr_sum += psnr(clamp01(t.render(f.camera, f.time)), f.image);
     return std::make_pair(psnr_sum / double(frames.size()), coarse_steps);
   };
   const auto full = fit(0), coarse = fit(2);

@@ -19,35 +19,13 @@
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
+#include "train/synthetic_frames.hpp"
 
 using namespace orbitforge;
 
 namespace {
 
-template <class S>
-std::vector<TrainFrame<S>> tiny_frames(int count = 8, int size = 32) {
-  SyntheticInputParams p;
-  p.frames = count;
-  p.source_frames = count;
-  p.width = p.height = size;
-  p.focal = 1.25 * size;
-  p.object_gaussians = 200;
-  p.ground_gaussians = 100;
-  const auto in = make_synthetic_input<S>(p);
-  RenderParams<S> rp;
-  rp.threads = 1;
-  rp.background = {S(1), S(1), S(1)};
-  Renderer<S> r(rp);
-  std::vector<TrainFrame<S>> frames;
-  for (int i = 0; i < count; ++i) {
-    TrainFrame<S> f;
-    f.camera = in.true_cameras[std::size_t(i)];
-    f.image = r.render(SceneView<S>(in.scene), f.camera).color;
-    f.time = S(i) / S(count - 1);
-    frames.push_back(std::move(f));
-  }
-  return frames;
-}
+using orbitforge_test::tiny_frames;
 
 template <class S>
 GaussianScene<S> tiny_init(const std::vector<TrainFrame<S>>& frames, std::size_t points = 300) {

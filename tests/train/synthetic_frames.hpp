@@ -1,0 +1,40 @@
+#pragma once
+// Training frames rendered from a small synthetic scene (pipeline/synthetic_input.hpp)
+// at its true cameras: count frames of size x size pixels (width x size when width
+// is given), white background, time codes spread over [0, 1].
+#include <vector>
+
+#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/trainer.hpp"
+
+namespace orbitforge_test {
+
+template <class S>
+std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32, int width = 0) {
+  using namespace orbitforge;
+  SyntheticInputParams p;
+  p.frames = count;
+  p.source_frames = count;
+  p.height = size;
+  p.width = width > 0 ? width : size;
+  p.focal = 1.25 * size;
+  p.object_gaussians = 200;
+  p.ground_gaussians = 100;
+  const auto in = make_synthetic_input<S>(p);
+  RenderParams<S> rp;
+  rp.threads = 1;
+  rp.background = {S(1), S(1), S(1)};
+  Renderer<S> r(rp);
+  std::vector<TrainFrame<S>> frames;
+  for (int i = 0; i < count; ++i) {
+    TrainFrame<S> f;
+    f.camera = in.true_cameras[std::size_t(i)];
+    f.image = r.render(SceneView<S>(in.scene), f.camera).color;
+    f.time = S(i) / S(count - 1);
+    frames.push_back(std::move(f));
+  }
+  return frames;
+}
+
+}  // namespace orbitforge_test
