@@ -56,5 +56,7 @@ TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-siz
   REQUIRE(full.second == 0);
   REQUIRE(coarse.second == 300);
   REQUIRE(full.first > 20);
-  REQUIRE(coarse.first > full.first - 1.0);
+  // Tiny scenes vary by about 1.3 dB between builds (the sanitizer build's -O1
+  // rounds differently); a wrong coarse camera costs 8 dB.
+  REQUIRE(coarse.first > full.first - 2.0);
 }
