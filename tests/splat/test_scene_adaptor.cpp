@@ -90,28 +90,29 @@ void make_host_scene(std::mt19937& rng, std::vector<HostGaussian>& host, Gaussia
   }
 }
 
-// A 64x48 camera at the origin looking down +z, and dL/d(colour) for it.
-Camera<double> host_camera() {
+// Random host Gaussians (as structs and as the library's scene), a 64x48 camera
+// at the origin looking down +z, and a random dL/d(colour) for it.
+struct HostFixture {
+  std::mt19937 rng;
+  std::vector<HostGaussian> host;
+  GaussianScene<double> scene;
   Camera<double> cam;
-  cam.intrinsics = {60, 60, 32, 24, 64, 48};
-  return cam;
-}
-Image<double> random_image(std::mt19937& rng) {
-  Image<double> v(64, 48, 3);
-  std::uniform_real_distribution<double> gv(-1, 1);
-  for (double& x : v.data) x = gv(rng);
-  return v;
-}
+  Image<double> v{64, 48, 3};
+  explicit HostFixture(unsigned seed) : rng(seed) {
+    make_host_scene(rng, host, scene);
+    cam.intrinsics = {60, 60, 32, 24, 64, 48};
+    std::uniform_real_distribution<double> gv(-1, 1);
+    for (double& x : v.data) x = gv(rng);
+  }
+  HostAdaptor adaptor() const { return HostAdaptor{&host}; }
+};
 }  // namespace
 
 TEST_CASE("an array-of-structs double adaptor renders and differentiates like the library's scene",
           "[splat][adaptor]") {
-  std::mt19937 rng(3);
-  std::vector<HostGaussian> host;
-  GaussianScene<double> scene;
-  make_host_scene(rng, host, scene);
-  const Camera<double> cam = host_camera();
-  const HostAdaptor adaptor{&host};
+  HostFixture fx(3);
+  const auto& [rng, host, scene, cam, v] = fx;
+  const HostAdaptor adaptor = fx.adaptor();
 
   Renderer<double> a, b;
   const Image<double> img_host = a.render(adaptor, cam).color;
@@ -125,7 +126,6 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
   // Gradients in each adaptor's own parametrisation: activated scales get
   // d/ds = (d/d log s) / s; means, opacity logits and SH agree; the quaternion
   // gradient is in the order the adaptor returned it (w first).
-  const Image<double> v = random_image(rng);
   const GaussianSceneGrad<double> g_host = a.backward(adaptor, cam, v);
   const GaussianSceneGrad<double> g_lib = b.backward(SceneView<double>(scene), cam, v);
   double worst = 0, largest = 0;
@@ -146,13 +146,9 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
 }
 
 TEST_CASE("backward writes into the host's own arrays, in the host's parametrisation", "[splat][adaptor]") {
-  std::mt19937 rng(5);
-  std::vector<HostGaussian> host;
-  GaussianScene<double> scene;
-  make_host_scene(rng, host, scene);
-  const Camera<double> cam = host_camera();
-  const HostAdaptor adaptor{&host};
-  const Image<double> v = random_image(rng);
+  HostFixture fx(5);
+  auto& [rng, host, scene, cam, v] = fx;  // the finite differences below move host values
+  const HostAdaptor adaptor = fx.adaptor();
 
   Renderer<double> lib;
   lib.render(SceneView<double>(scene), cam);

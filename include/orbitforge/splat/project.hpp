@@ -67,10 +67,6 @@ void project_scene(const Scene& scene, const Camera<typename Scene::scalar_type>
 }
 
 namespace detail {
-inline void check_vjp_inputs(std::size_t n, std::size_t fwd_size) {
-  ensure(fwd_size == n, "project_scene_vjp: forward result has ", fwd_size, " Gaussians, scene has ", n);
-}
-
 // The VJP of project_scene into a gradient view. `freeze` says which groups are
 // computed (derived from the view's null fields, plus the SH dc/rest split of
 // GaussianSceneGrad's Freeze).
@@ -86,7 +82,7 @@ void project_scene_vjp_into(const Scene& scene, const Camera<typename Scene::sca
   ensure(degree >= 0 && degree <= 3, "project_scene_vjp: SH degree must be 0..3, got ", degree);
   const std::size_t n = scene.size();
   const int k_count = sh_coefficient_count(degree);
-  check_vjp_inputs(n, fwd.size());
+  ensure(fwd.size() == n, "project_scene_vjp: forward result has ", fwd.size(), " Gaussians, scene has ", n);
   ensure(out.size == n, "project_scene_vjp: the gradient view is for ", out.size, " Gaussians, the scene has ", n);
   for (const auto* v : {&v_in.v_mean_x, &v_in.v_mean_y, &v_in.v_conic_a, &v_in.v_conic_b, &v_in.v_conic_c,
                         &v_in.v_opacity, &v_in.v_color_r, &v_in.v_color_g, &v_in.v_color_b, &v_in.v_depth})
@@ -186,8 +182,7 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
   using Scalar = typename Scene::scalar_type;
   const int degree = scene.sh_degree();
   ensure(degree >= 0 && degree <= 3, "project_scene_vjp: SH degree must be 0..3, got ", degree);
-  const std::size_t n = scene.size();
-  detail::check_vjp_inputs(n, fwd.size());
+  const std::size_t n = scene.size();  // the forward result and v_in are checked against it below
   const std::size_t sh_size = 3 * std::size_t(sh_coefficient_count(degree)) * n;
   auto prepare = [](std::vector<Scalar>& v, std::size_t size, bool frozen) {
     if (!frozen)
