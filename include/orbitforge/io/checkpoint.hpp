@@ -3,15 +3,17 @@
 // needs to continue exactly where it stopped, as plain data.
 //
 // Layout (native endianness; binary_io's primitives, nn/binary_io.hpp):
-//   tag "OFTRAIN1" + scalar size (u32)
+//   tag "OFTRAIN2" + scalar size (u32)
 //   iteration, budget (i32); frame count (u64); seed (u32); deformable (u8);
 //   scene extent (Scalar); elapsed seconds (f64)
+//   still-scene check: checked (u8), field baked (u8), the field's gain (f64);
+//   plateau stop: window loss sum, previous and last window means (f64), stopped (u8)
 //   scene: SH degree (i32), means, rotations, log_scales, opacity_logits, sh (arrays)
 //   Adam of the Gaussians (6 groups, nn/adam.hpp's record)
 //   random generator state (string); frame order (array of u64: a frame index per
 //   draw, a frame repeated as often as it is weighted), cursor (u64)
 //   densification statistics: gradient sums (f64), counts (u32), max radii (Scalar)
-//   deformable only: the DeformationField record, then its Adam
+//   deformable and not baked only: the DeformationField record, then its Adam
 // A file adds binary_io's checksum trailer and is written atomically; a damaged,
 // cut or extended file is refused before any of it is parsed.
 //
@@ -54,18 +56,27 @@ struct TrainingCheckpoint {
   std::vector<double> densify_grad_sum;
   std::vector<std::uint32_t> densify_count;
   std::vector<Scalar> densify_max_radius;
-  std::unique_ptr<DeformationField<Scalar>> field;  // deformable only
+  // Still-scene check and plateau stop (TrainParams::still_check_iterations,
+  // plateau_window).
+  bool still_checked = false;
+  bool field_baked = false;  // the field was baked into the scene; no field follows
+  double field_gain_db = 0;
+  double plateau_sum = 0, plateau_previous = 0, plateau_last = 0;
+  bool stopped = false;
+  std::unique_ptr<DeformationField<Scalar>> field;  // deformable and not baked only
   Adam<Scalar> field_adam;
 };
 
 namespace checkpoint_detail {
-inline constexpr char kTag[9] = "OFTRAIN1";
+inline constexpr char kTag[9] = "OFTRAIN2";
 }
 
 template <class Scalar>
 void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   using namespace binary_io;
-  ensure(!c.deformable || c.field, "write_checkpoint: a deformable checkpoint without its deformation field");
+  ensure(!c.deformable || c.field_baked || c.field,
+         "write_checkpoint: a deformable checkpoint without its deformation field");
+  ensure(!c.field_baked || c.deformable, "write_checkpoint: a static checkpoint cannot have a baked field");
   write_tag(os, checkpoint_detail::kTag, sizeof(Scalar));
   write<std::int32_t>(os, c.iteration);
   write<std::int32_t>(os, c.budget);
@@ -74,6 +85,13 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   write<std::uint8_t>(os, c.deformable ? 1 : 0);
   write(os, c.extent);
   write(os, c.elapsed_s);
+  write<std::uint8_t>(os, c.still_checked ? 1 : 0);
+  write<std::uint8_t>(os, c.field_baked ? 1 : 0);
+  write(os, c.field_gain_db);
+  write(os, c.plateau_sum);
+  write(os, c.plateau_previous);
+  write(os, c.plateau_last);
+  write<std::uint8_t>(os, c.stopped ? 1 : 0);
   const GaussianScene<Scalar>& s = c.scene;
   write<std::int32_t>(os, s.sh_degree);
   write_array(os, s.means.data(), s.means.size());
@@ -88,7 +106,7 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   write_array(os, c.densify_grad_sum.data(), c.densify_grad_sum.size());
   write_array(os, c.densify_count.data(), c.densify_count.size());
   write_array(os, c.densify_max_radius.data(), c.densify_max_radius.size());
-  if (c.deformable) {
+  if (c.deformable && !c.field_baked) {
     c.field->save(os);
     c.field_adam.save(os);
   }
@@ -110,6 +128,16 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
          c.budget);
   c.extent = read<Scalar>(is, "extent");
   c.elapsed_s = read<double>(is, "elapsed");
+  c.still_checked = read<std::uint8_t>(is, "still checked") != 0;
+  c.field_baked = read<std::uint8_t>(is, "field baked") != 0;
+  c.field_gain_db = read<double>(is, "field gain");
+  c.plateau_sum = read<double>(is, "plateau sum");
+  c.plateau_previous = read<double>(is, "plateau previous");
+  c.plateau_last = read<double>(is, "plateau last");
+  c.stopped = read<std::uint8_t>(is, "stopped") != 0;
+  ensure(!c.field_baked || c.deformable, "checkpoint: a static model with a baked field");
+  for (double v : {c.field_gain_db, c.plateau_sum, c.plateau_previous, c.plateau_last})
+    ensure(std::isfinite(v), "checkpoint: non-finite still-scene or plateau state");
   GaussianScene<Scalar>& s = c.scene;
   s.sh_degree = read<std::int32_t>(is, "SH degree");
   s.means = read_array<Scalar>(is, "means");
@@ -142,7 +170,7 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
              c.densify_max_radius.size() == s.size(),
          "checkpoint: densification statistics do not match the scene");
   c.field_adam = Adam<Scalar>(adam_params);
-  if (c.deformable) {
+  if (c.deformable && !c.field_baked) {
     c.field = std::make_unique<DeformationField<Scalar>>(DeformationField<Scalar>::load(is));
     c.field_adam.load(is);
     ensure(c.field_adam.group_count() == 1 && c.field_adam.group(0).rows == c.field->parameter_count(),

@@ -16,7 +16,10 @@
 //   the frame's t); loss 0.8 L1 + 0.2 (1 - SSIM); backward (into the field through its
 //   vjp, into the canonical Gaussians through base_gradients); Adam steps;
 //   densification statistics, densify/prune (optimizer moments remapped; new
-//   Gaussians start with zero moments) and opacity resets per DensifySchedule.
+//   Gaussians start with zero moments) and opacity resets per DensifySchedule;
+//   optionally the still-scene check (bakes a field that fits the frames no better
+//   than its bake, then trains static) and the plateau stop (finished() before
+//   the budget).
 // Differences from 3DGS: the optimizer step comes before densification in the same
 // iteration (3DGS densifies first and skips the step for the new tensors).
 //
@@ -48,6 +51,7 @@
 #include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/deform/deformation_field.hpp"
+#include "orbitforge/deform/median_baker.hpp"
 #include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/nn/adam.hpp"
 #include "orbitforge/splat/gaussians.hpp"
@@ -127,6 +131,24 @@ struct TrainParams {
   // coarse_levels to 0 over that span; the rest at full size. 0 = off.
   int coarse_levels = 0;
   double coarse_fraction = 0.5;
+
+  // Work a scene does not need (off by default; docs/benchmarks.md measures each).
+  // Still scene: still_check_iterations after the deformation warm-up, the field
+  // is baked (MedianGS over still_bake_samples time codes) and the bake's PSNR on
+  // up to 8 training frames is compared with the deformed model's; when the field
+  // gains less than still_gain_db the bake replaces the scene and training goes on
+  // static, a step then costing what a static one does. 0 = never checked.
+  int still_check_iterations = 0;
+  double still_gain_db = 0.1;
+  int still_bake_samples = 32;
+  // Plateau stop: once densification and the deformation warm-up are over, the mean
+  // loss over windows of whole passes over the frames (at least plateau_window
+  // iterations, so every frame weighs the same in each window) is compared with the
+  // previous window's; training ends when it improved by less than
+  // plateau_tolerance (relative; a negative tolerance only records the windows'
+  // means in TrainProgress). plateau_window 0 = train the whole budget.
+  int plateau_window = 0;
+  double plateau_tolerance = 0.002;
 };
 
 // The image level of iteration `it` (1-based) under the coarse-to-fine schedule.
@@ -155,6 +177,15 @@ struct TrainProgress {
   RenderStats render;  // the renderer's own breakdown of this iteration's render and backward
   // The last densification step (cumulative counts since the trainer started).
   std::size_t cloned = 0, split = 0, pruned = 0;
+  // Still-scene check (TrainParams::still_check_iterations): whether it ran, the
+  // field's gain over its bake on the training frames (dB), whether it was baked in.
+  bool still_checked = false;
+  double field_gain_db = 0;
+  bool field_baked = false;
+  // Plateau stop: the last two windows' mean losses (0 before they exist) and
+  // whether training ended at this iteration, before its budget.
+  double plateau_previous = 0, plateau_last = 0;
+  bool stopped = false;
 };
 
 // Schedules resolved for a budget.
@@ -190,6 +221,10 @@ class Trainer {
     ensure(params.max_sh_degree >= 0 && params.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ",
            params.max_sh_degree);
     ensure(params.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
+    ensure(params.still_check_iterations >= 0 && std::isfinite(params.still_gain_db) && params.still_bake_samples >= 2,
+           "Trainer: still_check_iterations must be >= 0, still_gain_db finite and still_bake_samples >= 2");
+    ensure(params.plateau_window >= 0 && std::isfinite(params.plateau_tolerance),
+           "Trainer: plateau_window must be >= 0 and plateau_tolerance finite");
     ensure(params.coarse_levels >= 0 && params.coarse_levels <= 6 && params.coarse_fraction >= 0 &&
                params.coarse_fraction <= 1,
            "Trainer: coarse_levels must be 0..6 and coarse_fraction 0..1, got ", params.coarse_levels, " and ",
@@ -250,14 +285,19 @@ class Trainer {
   int iteration() const { return iteration_; }
   Scalar extent() const { return extent_; }
   const TrainProgress& last_progress() const { return last_; }
-  // The deformation is applied at iterations > warmup.
+  // The deformation is applied at iterations > warmup (until a still-scene check
+  // bakes the field in).
   bool deforming_at(int it) const { return field_ && it > schedule_.warmup; }
+  // The budget is used up, or the plateau stop ended training.
+  bool finished() const { return stopped_ || iteration_ >= params_.iterations; }
+  // The still-scene check baked the field into the scene; training went on static.
+  bool field_baked() const { return field_baked_; }
 
-  // Trains until iteration `until` (at most params.iterations), calling `progress`
-  // after every iteration.
+  // Trains until iteration `until` (at most params.iterations; earlier when the
+  // plateau stop ends training), calling `progress` after every iteration.
   void train(int until, const Progress& progress = {}) {
     until = std::min(until, params_.iterations);
-    while (iteration_ < until) {
+    while (iteration_ < until && !stopped_) {
       step();
       if (progress) progress(last_);
     }
@@ -281,6 +321,7 @@ class Trainer {
     const auto t0 = clock::now();
     ensure(iteration_ < params_.iterations, "Trainer::step: the budget of ", params_.iterations,
            " iterations is used up");
+    ensure(!stopped_, "Trainer::step: training stopped on a plateau at iteration ", iteration_);
     const int it = ++iteration_;
     const int threads = params_.threads;
     update_learning_rates(it);
@@ -353,6 +394,10 @@ class Trainer {
     }
     last_.densify_ms = lap();
 
+    if (field_ && params_.still_check_iterations > 0 && it == schedule_.warmup + params_.still_check_iterations)
+      check_still();
+    track_plateau(it, double(loss.total));
+
     const double secs = std::chrono::duration<double>(clock::now() - t0).count();
     elapsed_ += secs;
     last_.iteration = it;
@@ -367,6 +412,12 @@ class Trainer {
     last_.seconds_per_iteration = secs;
     last_.elapsed_seconds = elapsed_;
     last_.frame = fi;
+    last_.still_checked = still_checked_;
+    last_.field_gain_db = field_gain_db_;
+    last_.field_baked = field_baked_;
+    last_.plateau_previous = plateau_previous_;
+    last_.plateau_last = plateau_last_;
+    last_.stopped = stopped_;
     return last_;
   }
 
@@ -460,6 +511,13 @@ class Trainer {
     c.densify_grad_sum = stats_.grad_sum;
     c.densify_count = stats_.count;
     c.densify_max_radius = stats_.max_radius;
+    c.field_baked = field_baked_;
+    c.still_checked = still_checked_;
+    c.field_gain_db = field_gain_db_;
+    c.plateau_sum = plateau_sum_;
+    c.plateau_previous = plateau_previous_;
+    c.plateau_last = plateau_last_;
+    c.stopped = stopped_;
     if (field_) {
       c.field = std::make_unique<DeformationField<Scalar>>(*field_);
       c.field_adam = field_adam_;
@@ -507,9 +565,16 @@ class Trainer {
     stats_.count = std::move(c.densify_count);
     stats_.max_radius = std::move(c.densify_max_radius);
     if (c.deformable) {
-      field_ = std::move(c.field);
+      field_ = std::move(c.field);  // null when the still-scene check baked it in
       field_adam_ = std::move(c.field_adam);
     }
+    field_baked_ = c.field_baked;
+    still_checked_ = c.still_checked;
+    field_gain_db_ = c.field_gain_db;
+    plateau_sum_ = c.plateau_sum;
+    plateau_previous_ = c.plateau_previous;
+    plateau_last_ = c.plateau_last;
+    stopped_ = c.stopped;
   }
   void load_checkpoint(std::istream& is) { restore(read_checkpoint<Scalar>(is, params_.adam)); }
   // Refuses a file whose checksum does not match before reading any of it.
@@ -659,6 +724,68 @@ class Trainer {
     stats_.reset(scene_.size());
   }
 
+  // Still scene: bake the field and compare the bake's fit of up to 8 training
+  // frames with the deformed model's; when the field gains too little, keep the
+  // bake and go on static. The scene keeps its size and row order, so the
+  // optimizer's moments still belong to their Gaussians.
+  void check_still() {
+    MedianBakeParams mp;
+    mp.samples = params_.still_bake_samples;
+    mp.threads = params_.threads;
+    GaussianScene<Scalar> baked = bake_median(scene_, FieldDeformation<Scalar>(*field_, params_.threads), mp);
+    const std::size_t k = std::min<std::size_t>(8, frames_.size());
+    double gain = 0;
+    for (std::size_t j = 0; j < k; ++j) {
+      const TrainFrame<Scalar>& f = frames_[j * frames_.size() / k];
+      const double deformed = fit_psnr(render(f.camera, f.time), f.image);
+      gain += (deformed - fit_psnr(renderer_.render(SceneView<Scalar>(baked), f.camera).color, f.image)) / double(k);
+    }
+    still_checked_ = true;
+    field_gain_db_ = gain;
+    if (!(gain < params_.still_gain_db)) return;
+    scene_ = std::move(baked);
+    field_.reset();
+    field_baked_ = true;
+  }
+
+  // PSNR of a render (clamped to [0, 1]) against a frame.
+  static double fit_psnr(const Image<Scalar>& render, const Image<Scalar>& frame) {
+    double se = 0;
+    for (std::size_t i = 0; i < render.data.size(); ++i) {
+      const double d = std::min(1.0, std::max(0.0, double(render.data[i]))) - double(frame.data[i]);
+      se += d * d;
+    }
+    const double mse = se / double(std::max<std::size_t>(1, render.data.size()));
+    return mse > 0 ? -10.0 * std::log10(mse) : 100.0;
+  }
+
+  // Plateau stop: windows of whole passes over the frames, ending at multiples of
+  // their length; a window counts once nothing but the optimiser changed the
+  // model during it (densification, opacity resets, warm-up, coarse levels, the
+  // still-scene bake all lie before its start).
+  void track_plateau(int it, double loss) {
+    if (params_.plateau_window <= 0) return;
+    const int pass = int(order_.size());
+    const int window = std::max(1, (params_.plateau_window + pass - 1) / pass) * pass;
+    plateau_sum_ += loss;
+    if (it % window != 0) return;
+    int quiet_from = 0;  // the first iteration after the last change to the model's structure
+    if (params_.densify) quiet_from = std::max(quiet_from, schedule_.densify.densify_until);
+    if (params_.deformable) quiet_from = std::max(quiet_from, schedule_.warmup + params_.still_check_iterations + 1);
+    if (params_.coarse_levels > 0)
+      quiet_from = std::max(quiet_from, int(std::ceil(params_.coarse_fraction * params_.iterations)) + 1);
+    const double mean = plateau_sum_ / window;
+    plateau_sum_ = 0;
+    if (it - window + 1 < quiet_from) {
+      plateau_previous_ = plateau_last_ = 0;
+      return;
+    }
+    plateau_previous_ = plateau_last_;
+    plateau_last_ = mean;
+    if (plateau_previous_ > 0 && plateau_previous_ - mean < params_.plateau_tolerance * plateau_previous_)
+      stopped_ = it < params_.iterations;
+  }
+
   // 3DGS's reset_opacity also replaces the optimizer state of the opacities by zeros.
   void reset_opacities() {
     reset_opacity(scene_, params_.densify_params);
@@ -683,6 +810,11 @@ class Trainer {
   int iteration_ = 0;
   double elapsed_ = 0;
   TrainProgress last_;
+  // Still-scene check and plateau stop (see TrainParams).
+  bool still_checked_ = false, field_baked_ = false;
+  double field_gain_db_ = 0;
+  double plateau_sum_ = 0, plateau_previous_ = 0, plateau_last_ = 0;
+  bool stopped_ = false;
 
   // Workspaces reused across iterations.
   Renderer<Scalar> renderer_;

@@ -1,0 +1,181 @@
+// Work a scene does not need: the still-scene check that bakes a field which
+// gains nothing over its bake, and the plateau stop
+// (TrainParams::still_check_iterations, plateau_window), with their checkpoints.
+#include <catch2/catch.hpp>
+#include <sstream>
+
+#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/train/init.hpp"
+#include "orbitforge/train/trainer.hpp"
+#include "train/synthetic_frames.hpp"
+
+using namespace orbitforge;
+
+namespace {
+
+std::vector<TrainFrame<float>> frames_for_levers() { return orbitforge_test::tiny_frames<float>(6, 32); }
+
+TrainParams lever_params() {
+  TrainParams p;
+  p.iterations = 600;
+  p.threads = 1;
+  p.background = {1, 1, 1};
+  p.min_densify_interval = 50;
+  return p;
+}
+
+GaussianScene<float> lever_init(const std::vector<TrainFrame<float>>& frames) {
+  std::vector<Camera<float>> cams;
+  for (const auto& f : frames) cams.push_back(f.camera);
+  InitParams ip;
+  ip.random_points = 1500;
+  return init_random(cams, camera_extent(cams), ip);
+}
+
+}  // namespace
+
+TEST_CASE("still-scene check: a field that gains too little is baked in and training goes on static",
+          "[train][levers]") {
+  const auto frames = frames_for_levers();
+  TrainParams p = lever_params();
+  p.deformable = true;
+  p.warmup_iterations = 100;
+  p.deform_reference_budget = p.iterations;
+  p.still_check_iterations = 50;
+  p.still_gain_db = 1e6;  // every field gains too little
+  const int check_at = 150;
+  Trainer<float> t(frames, lever_init(frames), p);
+  t.train(check_at - 1);
+  REQUIRE(t.field() != nullptr);
+  REQUIRE_FALSE(t.last_progress().still_checked);
+  // The bake at the check changes the scene by the field's median offsets only.
+  const TrainProgress& at = t.step();
+  REQUIRE(at.still_checked);
+  REQUIRE(at.field_baked);
+  REQUIRE(t.field_baked());
+  REQUIRE(t.field() == nullptr);
+  REQUIRE_FALSE(t.deforming_at(t.iteration() + 1));
+  // Static from here; a checkpoint taken now resumes to the same scene.
+  std::stringstream ckpt;
+  t.save_checkpoint(ckpt);
+  t.train(300);
+  REQUIRE_FALSE(t.last_progress().deforming);
+  Trainer<float> resumed(frames, lever_init(frames), p);
+  resumed.load_checkpoint(ckpt);
+  REQUIRE(resumed.field_baked());
+  REQUIRE(resumed.field() == nullptr);
+  resumed.train(300);
+  REQUIRE(resumed.scene().means == t.scene().means);
+  REQUIRE(resumed.scene().sh == t.scene().sh);
+
+  // A threshold no field misses: training stays deformable.
+  p.still_gain_db = -1e6;
+  Trainer<float> moving(frames, lever_init(frames), p);
+  moving.train(check_at);
+  REQUIRE(moving.last_progress().still_checked);
+  REQUIRE_FALSE(moving.field_baked());
+  REQUIRE(moving.field() != nullptr);
+  moving.train(check_at + 1);
+  REQUIRE(moving.last_progress().deforming);
+}
+
+TEST_CASE("still-scene check: a field fitted to a moving object gains more over its bake than a still one's",
+          "[train][levers]") {
+  // The same synthetic scene, still and with every Gaussian above the ground
+  // moving sideways by 0.3 of the camera distance over the time codes.
+  auto frames_of = [](double travel) {
+    SyntheticInputParams sp;
+    sp.frames = sp.source_frames = 6;
+    sp.width = sp.height = 32;
+    sp.focal = 40;
+    sp.object_gaussians = 200;
+    sp.ground_gaussians = 100;
+    const auto in = make_synthetic_input<float>(sp);
+    RenderParams<float> rp;
+    rp.threads = 1;
+    rp.background = {1, 1, 1};
+    Renderer<float> r(rp);
+    std::vector<TrainFrame<float>> frames;
+    for (int i = 0; i < sp.frames; ++i) {
+      TrainFrame<float> f;
+      f.camera = in.true_cameras[std::size_t(i)];
+      f.time = float(i) / float(sp.frames - 1);
+      GaussianScene<float> moved = in.scene;
+      const float shift = float(travel * (f.time - 0.5) * f.camera.center().norm());
+      for (std::size_t g = 0; g < moved.size(); ++g)
+        if (g < std::size_t(sp.object_gaussians)) moved.means[3 * g] += shift;
+      f.image = r.render(SceneView<float>(moved), f.camera).color;
+      frames.push_back(std::move(f));
+    }
+    return frames;
+  };
+  auto gain_after_fit = [](const std::vector<TrainFrame<float>>& frames) {
+    TrainParams p = lever_params();
+    p.iterations = 1000;
+    p.deformable = true;
+    p.warmup_iterations = 100;
+    p.deform_reference_budget = p.iterations;
+    p.still_check_iterations = 700;
+    p.still_gain_db = -1e6;
+    Trainer<float> t(frames, lever_init(frames), p);
+    t.train(800);
+    REQUIRE(t.last_progress().still_checked);
+    return t.last_progress().field_gain_db;
+  };
+  const double still = gain_after_fit(frames_of(0)), moving = gain_after_fit(frames_of(0.3));
+  INFO("the field's gain: still " << still << " dB, moving " << moving << " dB");
+  REQUIRE(moving > still + 1.0);
+}
+
+TEST_CASE("plateau stop: training ends once a window of whole passes stops improving", "[train][levers]") {
+  const auto frames = frames_for_levers();  // 6 frames: windows of 60 for plateau_window 55
+  TrainParams p = lever_params();
+  p.iterations = 3000;
+  p.densify = false;
+  p.plateau_window = 55;
+  p.plateau_tolerance = 0.01;
+  Trainer<float> t(frames, lever_init(frames), p);
+  int windows = 0;
+  double previous = 0;
+  while (!t.finished()) {
+    const TrainProgress& pr = t.step();
+    if (pr.iteration % 60 == 0) {
+      ++windows;
+      REQUIRE(pr.plateau_last > 0);
+      if (previous > 0) REQUIRE(pr.plateau_previous == previous);
+      previous = pr.plateau_last;
+    } else {
+      REQUIRE_FALSE(pr.stopped);
+    }
+  }
+  const TrainProgress& last = t.last_progress();
+  INFO("stopped at " << last.iteration << " after " << windows << " windows");
+  REQUIRE(last.stopped);
+  REQUIRE(last.iteration < p.iterations);
+  REQUIRE(last.iteration % 60 == 0);
+  REQUIRE(last.plateau_previous - last.plateau_last < 0.01 * last.plateau_previous);
+  REQUIRE(t.finished());
+  REQUIRE_THROWS_WITH(t.step(), Catch::Contains("plateau"));
+
+  // Resumed from a checkpoint before the stop, it stops at the same iteration
+  // with the same scene.
+  Trainer<float> first(frames, lever_init(frames), p);
+  first.train(last.iteration - 90);
+  std::stringstream ckpt;
+  first.save_checkpoint(ckpt);
+  Trainer<float> resumed(frames, lever_init(frames), p);
+  resumed.load_checkpoint(ckpt);
+  while (!resumed.finished()) resumed.step();
+  REQUIRE(resumed.iteration() == last.iteration);
+  REQUIRE(resumed.scene().means == t.scene().means);
+
+  // While densification runs (here: until past the budget) no window counts.
+  p.densify = true;
+  p.iterations = 1000;
+  p.reference_budget = 1000;  // the published schedule unscaled: densification until 15,000
+  Trainer<float> densifying(frames, lever_init(frames), p);
+  densifying.train(p.iterations);
+  REQUIRE(densifying.iteration() == p.iterations);
+  REQUIRE_FALSE(densifying.last_progress().stopped);
+  REQUIRE(densifying.last_progress().plateau_last == 0);
+}
