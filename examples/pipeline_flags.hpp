@@ -29,7 +29,15 @@ inline const char* kPipelineFlagsUsage =
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
     "  --g1-source-repeats N --g1-completion-repeats N\n"
     "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
-    "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n";
+    "  --no-static-diagnostics     skip the static-proxy comparison renders (not part of the method)\n"
+    "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n"
+    "Work a scene does not need (off by default; each reconstruction):\n"
+    "  --still-check N [--still-gain DB]   N iterations after the warm-up, bake the field in and train static\n"
+    "                              when it fits the frames less than DB better than its bake (default 0.1)\n"
+    "  --plateau-window N [--plateau-tolerance X]   stop when the mean loss over N iterations (whole passes)\n"
+    "                              improves by less than X (relative; default 0.002) after densification\n"
+    "  --max-gaussians N           Gaussian budget of densification\n"
+    "  --coarse-levels L           first half of training on frames downsampled by up to 2^L\n";
 
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
@@ -111,7 +119,14 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--oracle-bound") p.oracle_bound = true;
   else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
   else if (flag == "--quiet") p.progress = false;
+  else if (flag == "--no-static-diagnostics") p.static_proxy_diagnostics = false;
   else if (flag == "--checkpoint-every") p.checkpoint_every = integer(0);
+  else if (flag == "--still-check") p.train.still_check_iterations = integer(0);
+  else if (flag == "--still-gain") p.train.still_gain_db = parse_double(program, flag, a.value());
+  else if (flag == "--plateau-window") p.train.plateau_window = integer(0);
+  else if (flag == "--plateau-tolerance") p.train.plateau_tolerance = parse_double(program, flag, a.value());
+  else if (flag == "--max-gaussians") p.train.densify_params.max_gaussians = std::size_t(integer(0));
+  else if (flag == "--coarse-levels") p.train.coarse_levels = integer(0);
   else return false;
   return true;
 }

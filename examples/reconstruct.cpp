@@ -48,7 +48,8 @@ const char* kUsage =
     "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
     "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH]\n"
     "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
-    "                   [--coarse-levels L [--coarse-fraction F]]\n"
+    "                   [--coarse-levels L [--coarse-fraction F]] [--max-gaussians N]\n"
+    "                   [--still-check N [--still-gain DB]] [--plateau-window N [--plateau-tolerance X]]\n"
     "                   --out DIR\n"
     "  --protocol paper: the DeformableGS backend's schedule, learning rates and 8 x 256 network, unscaled,\n"
     "                    10,000 iterations, deformable, frames at their own size (flags given override)\n";
@@ -68,6 +69,10 @@ struct Args {
   unsigned seed = 0;
   int coarse_levels = 0;
   double coarse_fraction = 0.5;
+  // Levers that skip work (TrainParams; 0 = off).
+  int still_check = 0, plateau_window = 0;
+  double still_gain_db = 0.1, plateau_tolerance = 0.002;
+  long max_gaussians = 0;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
@@ -124,6 +129,11 @@ Args parse(int argc, char** argv) {
     else if (f == "--min-densify-interval") a.min_densify_interval = int(to_long(f, value(), 1));
     else if (f == "--coarse-levels") a.coarse_levels = int(to_long(f, value(), 0));
     else if (f == "--coarse-fraction") a.coarse_fraction = to_double(f, value());
+    else if (f == "--still-check") a.still_check = int(to_long(f, value(), 0));
+    else if (f == "--still-gain") a.still_gain_db = to_double(f, value());
+    else if (f == "--plateau-window") a.plateau_window = int(to_long(f, value(), 0));
+    else if (f == "--plateau-tolerance") a.plateau_tolerance = to_double(f, value());
+    else if (f == "--max-gaussians") a.max_gaussians = to_long(f, value(), 0);
     else if (f == "--minutes") {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
@@ -237,6 +247,11 @@ int run(const Args& a) {
   p.min_densify_interval = a.min_densify_interval;
   p.coarse_levels = a.coarse_levels;
   p.coarse_fraction = a.coarse_fraction;
+  p.still_check_iterations = a.still_check;
+  p.still_gain_db = a.still_gain_db;
+  p.plateau_window = a.plateau_window;
+  p.plateau_tolerance = a.plateau_tolerance;
+  p.densify_params.max_gaussians = std::size_t(a.max_gaussians);
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;
@@ -254,9 +269,23 @@ int run(const Args& a) {
   const int line_every = std::max(1, a.iters / 100);
   nlohmann::json curve = nlohmann::json::array();
   double train_seconds = 0;
-  while (trainer.iteration() < a.iters) {
+  nlohmann::json levers = nlohmann::json::object();
+  while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
     train_seconds = pr.elapsed_seconds;
+    if (pr.still_checked && !levers.contains("field_gain_db")) {
+      levers["field_gain_db"] = pr.field_gain_db;
+      levers["field_baked"] = pr.field_baked;
+      levers["still_check_at"] = pr.iteration;
+      std::fprintf(stderr, "reconstruct: the field fits the frames %.3f dB better than its bake: %s\n",
+                   pr.field_gain_db, pr.field_baked ? "baked in, training static" : "training deformable");
+    }
+    if (pr.plateau_last > 0 && (levers["plateau"].empty() || levers["plateau"].back()[1] != pr.plateau_last))
+      levers["plateau"].push_back({pr.iteration, pr.plateau_last});
+    if (pr.stopped) {
+      levers["stopped_at"] = pr.iteration;
+      std::fprintf(stderr, "reconstruct: loss plateaued, stopped at iteration %d\n", pr.iteration);
+    }
     if (tty) {
       const int width = 30, filled = int(double(width) * pr.iteration / pr.iterations);
       std::fprintf(stderr, "\r[%s%s] %d/%d loss %.4f psnr %.2f gaussians %zu %.0f ms/it  ",
@@ -294,8 +323,9 @@ int run(const Args& a) {
     m["holdout_ssim"] = e.ssim;
   }
   if (!curve.empty()) m["curve"] = curve;
+  if (!levers.empty()) m["levers"] = levers;
   GaussianScene<S> out_scene;
-  if (a.deformable) {
+  if (a.deformable && trainer.field()) {
     MedianBakeParams bp;
     bp.samples = a.median_samples;
     bp.threads = a.threads;

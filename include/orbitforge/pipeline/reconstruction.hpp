@@ -61,18 +61,27 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
   const std::string partial = (fs::path(dir) / "partial.bin").string();
   const std::string final_ckpt = (fs::path(dir) / "checkpoint.bin").string();
   Trainer<Scalar> trainer(frames, std::move(init), tp);
-  if (try_resume(trainer, final_ckpt, key, label, run.log) && trainer.iteration() == tp.iterations) {
+  if (try_resume(trainer, final_ckpt, key, label, run.log) && trainer.finished()) {
     run.log(label + ": training had finished; reusing its checkpoint");
   } else if (try_resume(trainer, partial, key, label, run.log)) {
     run.log(label + ": resuming at iteration " + std::to_string(trainer.iteration()));
   }
-  const bool trained_now = trainer.iteration() < tp.iterations;
-  while (trainer.iteration() < tp.iterations) {
+  const bool trained_now = !trainer.finished();
+  while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
+    if (pr.still_checked && pr.iteration == trainer.schedule().warmup + tp.still_check_iterations) {
+      char m[160];
+      std::snprintf(m, sizeof(m), "%s: the field fits the frames %.3f dB better than its bake: %s", label.c_str(),
+                    pr.field_gain_db, pr.field_baked ? "baked in, training static" : "training deformable");
+      run.log(m);
+    }
+    if (pr.stopped)
+      run.log(label + ": loss plateaued, training stopped at iteration " + std::to_string(pr.iteration) + " of " +
+              std::to_string(tp.iterations));
     char detail[96];
     std::snprintf(detail, sizeof(detail), "psnr %.2f  %zu gaussians", pr.psnr, pr.gaussians);
     run.progress(label, pr.iteration, tp.iterations, detail);
-    if (p.checkpoint_every > 0 && pr.iteration % p.checkpoint_every == 0 && pr.iteration < tp.iterations) {
+    if (p.checkpoint_every > 0 && pr.iteration % p.checkpoint_every == 0 && !trainer.finished()) {
       trainer.save_checkpoint(partial);
       write_file_atomic(partial + ".key", key);
     }

@@ -50,6 +50,13 @@ nlohmann::json train_settings(const TrainParams& t, int iters, bool deformable, 
           {"field_depth", t.field.depth},
           {"field_width", t.field.width},
           {"init_points", p.init_points},
+          {"max_gaussians", t.densify_params.max_gaussians},
+          {"coarse_levels", t.coarse_levels},
+          {"coarse_fraction", t.coarse_fraction},
+          {"still_check_iterations", t.still_check_iterations},
+          {"still_gain_db", t.still_gain_db},
+          {"plateau_window", t.plateau_window},
+          {"plateau_tolerance", t.plateau_tolerance},
           {"scalar_bytes", sizeof(Scalar)}};
 }
 

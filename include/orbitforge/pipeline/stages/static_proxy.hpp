@@ -44,7 +44,9 @@ void stage_static_proxy(PipelineRun<Scalar>& run) {
   trainer.load_checkpoint((out / "g0" / "checkpoint.bin").string());
   nlohmann::json j = {{"views_scored", 0}, {"variants", nlohmann::json::object()}};
   if (!trainer.field() || !trainer.deforming_at(trainer.iteration())) {
-    j["note"] = "G0 never deformed (training ended within the warm-up): the three variants coincide";
+    j["note"] = trainer.field_baked()
+                    ? "G0's field moved the scene too little and was baked in: the three variants coincide"
+                    : "G0 never deformed (training ended within the warm-up): the three variants coincide";
   } else {
     std::vector<int> views = rendered_views(run.fit.views, p.render_stride);
     if (views.size() > 2 && views.back() == run.fit.views - 1) views.pop_back();
