@@ -14,7 +14,8 @@
 // whose scene is finite and sized consistently: consistent arrays, SH degree within
 // the maximum, iteration within the budget, a finite positive extent, optimizer
 // groups of the scene's rows and the parameters' widths with valid Adam settings,
-// densification statistics of the scene's size and (deformable) a finite network.
+// densification statistics of the scene's size and (deformable) a finite network
+// unless the still-scene check baked it in.
 // orbitforge::Error is expected for bad input; anything else is a bug (abort).
 //
 // Seeds: run with an empty or missing corpus folder and checkpoints of the same
@@ -150,10 +151,9 @@ void check_trainer(const Trainer<S>& t, bool deformable) {
   }
   const auto& st = t.densify_stats();
   if (st.grad_sum.size() != n || st.count.size() != n || st.max_radius.size() != n) bug("densify stats size");
-  if (deformable) {
-    if (!t.field()) bug("deformable trainer without a field");
-    all_finite(t.field()->parameters(), "deformation parameters");
-  }
+  if (deformable && !t.field() && !t.field_baked()) bug("deformable trainer without a field that was not baked in");
+  if (!deformable && (t.field() || t.field_baked())) bug("static trainer with a deformation field");
+  if (t.field()) all_finite(t.field()->parameters(), "deformation parameters");
 }
 
 void load_and_check(const std::string& payload, bool deformable, bool step) {
