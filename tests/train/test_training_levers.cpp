@@ -4,7 +4,6 @@
 #include <catch2/catch.hpp>
 #include <sstream>
 
-#include "orbitforge/pipeline/synthetic_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "train/synthetic_frames.hpp"
@@ -79,54 +78,6 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
   REQUIRE(moving.last_progress().deforming);
 }
 
-TEST_CASE("still-scene check: a field fitted to a moving object gains more over its bake than a still one's",
-          "[train][levers]") {
-  // The same synthetic scene, still and with every Gaussian above the ground
-  // moving sideways by 0.3 of the camera distance over the time codes.
-  auto frames_of = [](double travel) {
-    SyntheticInputParams sp;
-    sp.frames = sp.source_frames = 6;
-    sp.width = sp.height = 32;
-    sp.focal = 40;
-    sp.object_gaussians = 200;
-    sp.ground_gaussians = 100;
-    const auto in = make_synthetic_input<float>(sp);
-    RenderParams<float> rp;
-    rp.threads = 1;
-    rp.background = {1, 1, 1};
-    Renderer<float> r(rp);
-    std::vector<TrainFrame<float>> frames;
-    for (int i = 0; i < sp.frames; ++i) {
-      TrainFrame<float> f;
-      f.camera = in.true_cameras[std::size_t(i)];
-      f.time = float(i) / float(sp.frames - 1);
-      GaussianScene<float> moved = in.scene;
-      const float shift = float(travel * (f.time - 0.5) * f.camera.center().norm());
-      for (std::size_t g = 0; g < moved.size(); ++g)
-        if (g < std::size_t(sp.object_gaussians)) moved.means[3 * g] += shift;
-      f.image = r.render(SceneView<float>(moved), f.camera).color;
-      frames.push_back(std::move(f));
-    }
-    return frames;
-  };
-  auto gain_after_fit = [](const std::vector<TrainFrame<float>>& frames) {
-    TrainParams p = lever_params();
-    p.iterations = 1000;
-    p.deformable = true;
-    p.warmup_iterations = 100;
-    p.deform_reference_budget = p.iterations;
-    p.still_check_iterations = 700;
-    p.still_gain_db = -1e6;
-    Trainer<float> t(frames, lever_init(frames), p);
-    t.train(800);
-    REQUIRE(t.last_progress().still_checked);
-    return t.last_progress().field_gain_db;
-  };
-  const double still = gain_after_fit(frames_of(0)), moving = gain_after_fit(frames_of(0.3));
-  INFO("the field's gain: still " << still << " dB, moving " << moving << " dB");
-  REQUIRE(moving > still + 1.0);
-}
-
 TEST_CASE("plateau stop: training ends once a window of whole passes stops improving", "[train][levers]") {
   const auto frames = frames_for_levers();  // 6 frames: windows of 60 for plateau_window 55
   TrainParams p = lever_params();
@@ -171,8 +122,8 @@ TEST_CASE("plateau stop: training ends once a window of whole passes stops impro
 
   // While densification runs (here: until past the budget) no window counts.
   p.densify = true;
-  p.iterations = 1000;
-  p.reference_budget = 1000;  // the published schedule unscaled: densification until 15,000
+  p.iterations = 400;
+  p.reference_budget = 400;  // the published schedule unscaled: densification until 15,000
   Trainer<float> densifying(frames, lever_init(frames), p);
   densifying.train(p.iterations);
   REQUIRE(densifying.iteration() == p.iterations);
