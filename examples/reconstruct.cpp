@@ -273,16 +273,17 @@ int run(const Args& a) {
   while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
     train_seconds = pr.elapsed_seconds;
-    if (pr.still_checked && !levers.contains("field_gain_db")) {
-      levers["field_gain_db"] = pr.field_gain_db;
-      levers["field_baked"] = pr.field_baked;
+    const ShortcutState& sc = pr.shortcuts;
+    if (sc.still_checked && !levers.contains("field_gain_db")) {
+      levers["field_gain_db"] = sc.field_gain_db;
+      levers["field_baked"] = sc.field_baked;
       levers["still_check_at"] = pr.iteration;
       std::fprintf(stderr, "reconstruct: the field fits the frames %.3f dB better than its bake: %s\n",
-                   pr.field_gain_db, pr.field_baked ? "baked in, training static" : "training deformable");
+                   sc.field_gain_db, sc.field_baked ? "baked in, training static" : "training deformable");
     }
-    if (pr.plateau_last > 0 && (levers["plateau"].empty() || levers["plateau"].back()[1] != pr.plateau_last))
-      levers["plateau"].push_back({pr.iteration, pr.plateau_last});
-    if (pr.stopped) {
+    if (sc.plateau_last > 0 && (levers["plateau"].empty() || levers["plateau"].back()[1] != sc.plateau_last))
+      levers["plateau"].push_back({pr.iteration, sc.plateau_last});
+    if (sc.stopped) {
       levers["stopped_at"] = pr.iteration;
       std::fprintf(stderr, "reconstruct: loss plateaued, stopped at iteration %d\n", pr.iteration);
     }

@@ -77,32 +77,32 @@ TEMPLATE_TEST_CASE("checkpoint records round-trip bit for bit", "[io][checkpoint
 
 TEST_CASE("checkpoint records keep the still-scene and plateau state", "[io][checkpoint]") {
   TrainingCheckpoint<float> c = make_checkpoint<float>(true);
-  c.still_checked = true;
-  c.field_baked = true;  // baked: no field follows
+  c.shortcuts.still_checked = true;
+  c.shortcuts.field_baked = true;  // baked: no field follows
   c.field.reset();
-  c.field_gain_db = 0.03;
-  c.plateau_sum = 1.5;
-  c.plateau_previous = 0.25;
-  c.plateau_last = 0.24;
-  c.stopped = true;
+  c.shortcuts.field_gain_db = 0.03;
+  c.shortcuts.plateau_sum = 1.5;
+  c.shortcuts.plateau_previous = 0.25;
+  c.shortcuts.plateau_last = 0.24;
+  c.shortcuts.stopped = true;
   const std::string a = bytes_of(c);
   std::istringstream is(a, std::ios::binary);
   const TrainingCheckpoint<float> r = read_checkpoint<float>(is);
   REQUIRE(r.deformable);
-  REQUIRE(r.still_checked);
-  REQUIRE(r.field_baked);
+  REQUIRE(r.shortcuts.still_checked);
+  REQUIRE(r.shortcuts.field_baked);
   REQUIRE_FALSE(r.field);
-  REQUIRE(r.field_gain_db == 0.03);
-  REQUIRE(r.plateau_previous == 0.25);
-  REQUIRE(r.plateau_last == 0.24);
-  REQUIRE(r.stopped);
+  REQUIRE(r.shortcuts.field_gain_db == 0.03);
+  REQUIRE(r.shortcuts.plateau_previous == 0.25);
+  REQUIRE(r.shortcuts.plateau_last == 0.24);
+  REQUIRE(r.shortcuts.stopped);
   REQUIRE(bytes_of(r) == a);
   // A deformable record neither baked nor holding its field, or a static one
   // with a baked field, is not written.
-  c.field_baked = false;
+  c.shortcuts.field_baked = false;
   REQUIRE_THROWS_WITH(bytes_of(c), Catch::Contains("without its deformation field"));
   TrainingCheckpoint<float> s = make_checkpoint<float>(false);
-  s.field_baked = true;
+  s.shortcuts.field_baked = true;
   REQUIRE_THROWS_WITH(bytes_of(s), Catch::Contains("baked field"));
 }
 

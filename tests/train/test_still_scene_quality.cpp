@@ -57,8 +57,8 @@ TEST_CASE("still-scene check: a field fitted to a moving object gains more over 
     ip.random_points = 1500;
     Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);
     t.train(800);
-    REQUIRE(t.last_progress().still_checked);
-    return t.last_progress().field_gain_db;
+    REQUIRE(t.last_progress().shortcuts.still_checked);
+    return t.last_progress().shortcuts.field_gain_db;
   };
   const double still = gain_after_fit(frames_of(0)), moving = gain_after_fit(frames_of(0.3));
   INFO("the field's gain: still " << still << " dB, moving " << moving << " dB");

@@ -46,11 +46,11 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
   Trainer<float> t(frames, lever_init(frames), p);
   t.train(check_at - 1);
   REQUIRE(t.field() != nullptr);
-  REQUIRE_FALSE(t.last_progress().still_checked);
+  REQUIRE_FALSE(t.last_progress().shortcuts.still_checked);
   // The bake at the check changes the scene by the field's median offsets only.
   const TrainProgress& at = t.step();
-  REQUIRE(at.still_checked);
-  REQUIRE(at.field_baked);
+  REQUIRE(at.shortcuts.still_checked);
+  REQUIRE(at.shortcuts.field_baked);
   REQUIRE(t.field_baked());
   REQUIRE(t.field() == nullptr);
   REQUIRE_FALSE(t.deforming_at(t.iteration() + 1));
@@ -71,7 +71,7 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
   p.still_gain_db = -1e6;
   Trainer<float> moving(frames, lever_init(frames), p);
   moving.train(check_at);
-  REQUIRE(moving.last_progress().still_checked);
+  REQUIRE(moving.last_progress().shortcuts.still_checked);
   REQUIRE_FALSE(moving.field_baked());
   REQUIRE(moving.field() != nullptr);
   moving.train(check_at + 1);
@@ -92,19 +92,20 @@ TEST_CASE("plateau stop: training ends once a window of whole passes stops impro
     const TrainProgress& pr = t.step();
     if (pr.iteration % 60 == 0) {
       ++windows;
-      REQUIRE(pr.plateau_last > 0);
-      if (previous > 0) REQUIRE(pr.plateau_previous == previous);
-      previous = pr.plateau_last;
+      REQUIRE(pr.shortcuts.plateau_last > 0);
+      if (previous > 0) REQUIRE(pr.shortcuts.plateau_previous == previous);
+      previous = pr.shortcuts.plateau_last;
     } else {
-      REQUIRE_FALSE(pr.stopped);
+      REQUIRE_FALSE(pr.shortcuts.stopped);
     }
   }
   const TrainProgress& last = t.last_progress();
   INFO("stopped at " << last.iteration << " after " << windows << " windows");
-  REQUIRE(last.stopped);
+  REQUIRE(last.shortcuts.stopped);
   REQUIRE(last.iteration < p.iterations);
   REQUIRE(last.iteration % 60 == 0);
-  REQUIRE(last.plateau_previous - last.plateau_last < 0.01 * last.plateau_previous);
+  const ShortcutState& sc = last.shortcuts;
+  REQUIRE(sc.plateau_previous - sc.plateau_last < 0.01 * sc.plateau_previous);
   REQUIRE(t.finished());
   REQUIRE_THROWS_WITH(t.step(), Catch::Contains("plateau"));
 
@@ -127,6 +128,6 @@ TEST_CASE("plateau stop: training ends once a window of whole passes stops impro
   Trainer<float> densifying(frames, lever_init(frames), p);
   densifying.train(p.iterations);
   REQUIRE(densifying.iteration() == p.iterations);
-  REQUIRE_FALSE(densifying.last_progress().stopped);
-  REQUIRE(densifying.last_progress().plateau_last == 0);
+  REQUIRE_FALSE(densifying.last_progress().shortcuts.stopped);
+  REQUIRE(densifying.last_progress().shortcuts.plateau_last == 0);
 }

@@ -39,6 +39,18 @@
 
 namespace orbitforge {
 
+// What the still-scene check and the plateau stop decided so far
+// (TrainParams::still_check_iterations, plateau_window): the trainer keeps it,
+// reports it with every iteration and saves it in its checkpoint.
+struct ShortcutState {
+  bool still_checked = false;
+  bool field_baked = false;  // the field was baked into the scene; training went on static
+  double field_gain_db = 0;  // the deformed model's PSNR over its bake's on training frames
+  double plateau_sum = 0;    // the loss summed over the current window
+  double plateau_previous = 0, plateau_last = 0;  // the last two windows' mean losses (0 before they exist)
+  bool stopped = false;      // training ended on a plateau, before its budget
+};
+
 template <class Scalar>
 struct TrainingCheckpoint {
   int iteration = 0;  // iterations done
@@ -56,13 +68,7 @@ struct TrainingCheckpoint {
   std::vector<double> densify_grad_sum;
   std::vector<std::uint32_t> densify_count;
   std::vector<Scalar> densify_max_radius;
-  // Still-scene check and plateau stop (TrainParams::still_check_iterations,
-  // plateau_window).
-  bool still_checked = false;
-  bool field_baked = false;  // the field was baked into the scene; no field follows
-  double field_gain_db = 0;
-  double plateau_sum = 0, plateau_previous = 0, plateau_last = 0;
-  bool stopped = false;
+  ShortcutState shortcuts;  // field_baked: no field follows
   std::unique_ptr<DeformationField<Scalar>> field;  // deformable and not baked only
   Adam<Scalar> field_adam;
 };
@@ -74,9 +80,9 @@ inline constexpr char kTag[9] = "OFTRAIN2";
 template <class Scalar>
 void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   using namespace binary_io;
-  ensure(!c.deformable || c.field_baked || c.field,
+  ensure(!c.deformable || c.shortcuts.field_baked || c.field,
          "write_checkpoint: a deformable checkpoint without its deformation field");
-  ensure(!c.field_baked || c.deformable, "write_checkpoint: a static checkpoint cannot have a baked field");
+  ensure(!c.shortcuts.field_baked || c.deformable, "write_checkpoint: a static checkpoint cannot have a baked field");
   write_tag(os, checkpoint_detail::kTag, sizeof(Scalar));
   write<std::int32_t>(os, c.iteration);
   write<std::int32_t>(os, c.budget);
@@ -85,13 +91,13 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   write<std::uint8_t>(os, c.deformable ? 1 : 0);
   write(os, c.extent);
   write(os, c.elapsed_s);
-  write<std::uint8_t>(os, c.still_checked ? 1 : 0);
-  write<std::uint8_t>(os, c.field_baked ? 1 : 0);
-  write(os, c.field_gain_db);
-  write(os, c.plateau_sum);
-  write(os, c.plateau_previous);
-  write(os, c.plateau_last);
-  write<std::uint8_t>(os, c.stopped ? 1 : 0);
+  write<std::uint8_t>(os, c.shortcuts.still_checked ? 1 : 0);
+  write<std::uint8_t>(os, c.shortcuts.field_baked ? 1 : 0);
+  write(os, c.shortcuts.field_gain_db);
+  write(os, c.shortcuts.plateau_sum);
+  write(os, c.shortcuts.plateau_previous);
+  write(os, c.shortcuts.plateau_last);
+  write<std::uint8_t>(os, c.shortcuts.stopped ? 1 : 0);
   const GaussianScene<Scalar>& s = c.scene;
   write<std::int32_t>(os, s.sh_degree);
   write_array(os, s.means.data(), s.means.size());
@@ -106,7 +112,7 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   write_array(os, c.densify_grad_sum.data(), c.densify_grad_sum.size());
   write_array(os, c.densify_count.data(), c.densify_count.size());
   write_array(os, c.densify_max_radius.data(), c.densify_max_radius.size());
-  if (c.deformable && !c.field_baked) {
+  if (c.deformable && !c.shortcuts.field_baked) {
     c.field->save(os);
     c.field_adam.save(os);
   }
@@ -128,15 +134,16 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
          c.budget);
   c.extent = read<Scalar>(is, "extent");
   c.elapsed_s = read<double>(is, "elapsed");
-  c.still_checked = read<std::uint8_t>(is, "still checked") != 0;
-  c.field_baked = read<std::uint8_t>(is, "field baked") != 0;
-  c.field_gain_db = read<double>(is, "field gain");
-  c.plateau_sum = read<double>(is, "plateau sum");
-  c.plateau_previous = read<double>(is, "plateau previous");
-  c.plateau_last = read<double>(is, "plateau last");
-  c.stopped = read<std::uint8_t>(is, "stopped") != 0;
-  ensure(!c.field_baked || c.deformable, "checkpoint: a static model with a baked field");
-  for (double v : {c.field_gain_db, c.plateau_sum, c.plateau_previous, c.plateau_last})
+  c.shortcuts.still_checked = read<std::uint8_t>(is, "still checked") != 0;
+  c.shortcuts.field_baked = read<std::uint8_t>(is, "field baked") != 0;
+  c.shortcuts.field_gain_db = read<double>(is, "field gain");
+  c.shortcuts.plateau_sum = read<double>(is, "plateau sum");
+  c.shortcuts.plateau_previous = read<double>(is, "plateau previous");
+  c.shortcuts.plateau_last = read<double>(is, "plateau last");
+  c.shortcuts.stopped = read<std::uint8_t>(is, "stopped") != 0;
+  ensure(!c.shortcuts.field_baked || c.deformable, "checkpoint: a static model with a baked field");
+  const ShortcutState& sc = c.shortcuts;
+  for (double v : {sc.field_gain_db, sc.plateau_sum, sc.plateau_previous, sc.plateau_last})
     ensure(std::isfinite(v), "checkpoint: non-finite still-scene or plateau state");
   GaussianScene<Scalar>& s = c.scene;
   s.sh_degree = read<std::int32_t>(is, "SH degree");
@@ -170,7 +177,7 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
              c.densify_max_radius.size() == s.size(),
          "checkpoint: densification statistics do not match the scene");
   c.field_adam = Adam<Scalar>(adam_params);
-  if (c.deformable && !c.field_baked) {
+  if (c.deformable && !c.shortcuts.field_baked) {
     c.field = std::make_unique<DeformationField<Scalar>>(DeformationField<Scalar>::load(is));
     c.field_adam.load(is);
     ensure(c.field_adam.group_count() == 1 && c.field_adam.group(0).rows == c.field->parameter_count(),

@@ -177,15 +177,8 @@ struct TrainProgress {
   RenderStats render;  // the renderer's own breakdown of this iteration's render and backward
   // The last densification step (cumulative counts since the trainer started).
   std::size_t cloned = 0, split = 0, pruned = 0;
-  // Still-scene check (TrainParams::still_check_iterations): whether it ran, the
-  // field's gain over its bake on the training frames (dB), whether it was baked in.
-  bool still_checked = false;
-  double field_gain_db = 0;
-  bool field_baked = false;
-  // Plateau stop: the last two windows' mean losses (0 before they exist) and
-  // whether training ended at this iteration, before its budget.
-  double plateau_previous = 0, plateau_last = 0;
-  bool stopped = false;
+  // The still-scene check's and the plateau stop's state after this iteration.
+  ShortcutState shortcuts;
 };
 
 // Schedules resolved for a budget.
@@ -289,15 +282,20 @@ class Trainer {
   // bakes the field in).
   bool deforming_at(int it) const { return field_ && it > schedule_.warmup; }
   // The budget is used up, or the plateau stop ended training.
-  bool finished() const { return stopped_ || iteration_ >= params_.iterations; }
+  bool finished() const { return shortcuts_.stopped || iteration_ >= params_.iterations; }
   // The still-scene check baked the field into the scene; training went on static.
-  bool field_baked() const { return field_baked_; }
+  bool field_baked() const { return shortcuts_.field_baked; }
+  // The iteration at whose end the still-scene check runs (0: it does not).
+  int still_check_iteration() const {
+    return params_.deformable && params_.still_check_iterations > 0 ? schedule_.warmup + params_.still_check_iterations
+                                                                    : 0;
+  }
 
   // Trains until iteration `until` (at most params.iterations; earlier when the
   // plateau stop ends training), calling `progress` after every iteration.
   void train(int until, const Progress& progress = {}) {
     until = std::min(until, params_.iterations);
-    while (iteration_ < until && !stopped_) {
+    while (iteration_ < until && !shortcuts_.stopped) {
       step();
       if (progress) progress(last_);
     }
@@ -321,7 +319,7 @@ class Trainer {
     const auto t0 = clock::now();
     ensure(iteration_ < params_.iterations, "Trainer::step: the budget of ", params_.iterations,
            " iterations is used up");
-    ensure(!stopped_, "Trainer::step: training stopped on a plateau at iteration ", iteration_);
+    ensure(!shortcuts_.stopped, "Trainer::step: training stopped on a plateau at iteration ", iteration_);
     const int it = ++iteration_;
     const int threads = params_.threads;
     update_learning_rates(it);
@@ -394,8 +392,7 @@ class Trainer {
     }
     last_.densify_ms = lap();
 
-    if (field_ && params_.still_check_iterations > 0 && it == schedule_.warmup + params_.still_check_iterations)
-      check_still();
+    if (field_ && it == still_check_iteration()) check_still();
     track_plateau(it, double(loss.total));
 
     const double secs = std::chrono::duration<double>(clock::now() - t0).count();
@@ -412,12 +409,7 @@ class Trainer {
     last_.seconds_per_iteration = secs;
     last_.elapsed_seconds = elapsed_;
     last_.frame = fi;
-    last_.still_checked = still_checked_;
-    last_.field_gain_db = field_gain_db_;
-    last_.field_baked = field_baked_;
-    last_.plateau_previous = plateau_previous_;
-    last_.plateau_last = plateau_last_;
-    last_.stopped = stopped_;
+    last_.shortcuts = shortcuts_;
     return last_;
   }
 
@@ -511,13 +503,7 @@ class Trainer {
     c.densify_grad_sum = stats_.grad_sum;
     c.densify_count = stats_.count;
     c.densify_max_radius = stats_.max_radius;
-    c.field_baked = field_baked_;
-    c.still_checked = still_checked_;
-    c.field_gain_db = field_gain_db_;
-    c.plateau_sum = plateau_sum_;
-    c.plateau_previous = plateau_previous_;
-    c.plateau_last = plateau_last_;
-    c.stopped = stopped_;
+    c.shortcuts = shortcuts_;
     if (field_) {
       c.field = std::make_unique<DeformationField<Scalar>>(*field_);
       c.field_adam = field_adam_;
@@ -568,13 +554,7 @@ class Trainer {
       field_ = std::move(c.field);  // null when the still-scene check baked it in
       field_adam_ = std::move(c.field_adam);
     }
-    field_baked_ = c.field_baked;
-    still_checked_ = c.still_checked;
-    field_gain_db_ = c.field_gain_db;
-    plateau_sum_ = c.plateau_sum;
-    plateau_previous_ = c.plateau_previous;
-    plateau_last_ = c.plateau_last;
-    stopped_ = c.stopped;
+    shortcuts_ = c.shortcuts;
   }
   void load_checkpoint(std::istream& is) { restore(read_checkpoint<Scalar>(is, params_.adam)); }
   // Refuses a file whose checksum does not match before reading any of it.
@@ -740,12 +720,12 @@ class Trainer {
       const double deformed = fit_psnr(render(f.camera, f.time), f.image);
       gain += (deformed - fit_psnr(renderer_.render(SceneView<Scalar>(baked), f.camera).color, f.image)) / double(k);
     }
-    still_checked_ = true;
-    field_gain_db_ = gain;
+    shortcuts_.still_checked = true;
+    shortcuts_.field_gain_db = gain;
     if (!(gain < params_.still_gain_db)) return;
     scene_ = std::move(baked);
     field_.reset();
-    field_baked_ = true;
+    shortcuts_.field_baked = true;
   }
 
   // PSNR of a render (clamped to [0, 1]) against a frame.
@@ -767,23 +747,24 @@ class Trainer {
     if (params_.plateau_window <= 0) return;
     const int pass = int(order_.size());
     const int window = std::max(1, (params_.plateau_window + pass - 1) / pass) * pass;
-    plateau_sum_ += loss;
+    ShortcutState& s = shortcuts_;
+    s.plateau_sum += loss;
     if (it % window != 0) return;
     int quiet_from = 0;  // the first iteration after the last change to the model's structure
     if (params_.densify) quiet_from = std::max(quiet_from, schedule_.densify.densify_until);
-    if (params_.deformable) quiet_from = std::max(quiet_from, schedule_.warmup + params_.still_check_iterations + 1);
+    if (params_.deformable) quiet_from = std::max(quiet_from, std::max(schedule_.warmup, still_check_iteration()) + 1);
     if (params_.coarse_levels > 0)
       quiet_from = std::max(quiet_from, int(std::ceil(params_.coarse_fraction * params_.iterations)) + 1);
-    const double mean = plateau_sum_ / window;
-    plateau_sum_ = 0;
+    const double mean = s.plateau_sum / window;
+    s.plateau_sum = 0;
     if (it - window + 1 < quiet_from) {
-      plateau_previous_ = plateau_last_ = 0;
+      s.plateau_previous = s.plateau_last = 0;
       return;
     }
-    plateau_previous_ = plateau_last_;
-    plateau_last_ = mean;
-    if (plateau_previous_ > 0 && plateau_previous_ - mean < params_.plateau_tolerance * plateau_previous_)
-      stopped_ = it < params_.iterations;
+    s.plateau_previous = s.plateau_last;
+    s.plateau_last = mean;
+    if (s.plateau_previous > 0 && s.plateau_previous - mean < params_.plateau_tolerance * s.plateau_previous)
+      s.stopped = it < params_.iterations;
   }
 
   // 3DGS's reset_opacity also replaces the optimizer state of the opacities by zeros.
@@ -811,10 +792,7 @@ class Trainer {
   double elapsed_ = 0;
   TrainProgress last_;
   // Still-scene check and plateau stop (see TrainParams).
-  bool still_checked_ = false, field_baked_ = false;
-  double field_gain_db_ = 0;
-  double plateau_sum_ = 0, plateau_previous_ = 0, plateau_last_ = 0;
-  bool stopped_ = false;
+  ShortcutState shortcuts_;
 
   // Workspaces reused across iterations.
   Renderer<Scalar> renderer_;
