@@ -78,6 +78,36 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
   REQUIRE(moving.last_progress().deforming);
 }
 
+TEST_CASE("still-scene check under coarse-to-fine: the iterations up to the check train at full size",
+          "[train][levers]") {
+  const auto frames = frames_for_levers();
+  TrainParams p = lever_params();
+  p.deformable = true;
+  p.warmup_iterations = 100;
+  p.deform_reference_budget = p.iterations;
+  p.still_check_iterations = 50;
+  p.coarse_levels = 1;
+  p.coarse_fraction = 0.5;  // iterations 1-300 at half size without the check
+  Trainer<float> t(frames, lever_init(frames), p);
+  REQUIRE(t.still_check_iteration() == 150);
+  int full = 0, half = 0;
+  t.train(320, [&](const TrainProgress& pr) {
+    REQUIRE(pr.image_level == t.image_level_at(pr.iteration));
+    if (pr.iteration <= 150) REQUIRE(pr.image_level == 0);
+    (pr.image_level == 0 ? full : half) += 1;
+    if (pr.iteration == 150) REQUIRE(pr.shortcuts.still_checked);
+  });
+  REQUIRE(half == 150);  // 151-300
+  REQUIRE(full == 170);
+  // Without the check the coarse span starts at the first iteration.
+  p.still_check_iterations = 0;
+  Trainer<float> plain(frames, lever_init(frames), p);
+  REQUIRE(plain.still_check_iteration() == 0);
+  REQUIRE(plain.image_level_at(1) == 1);
+  REQUIRE(plain.image_level_at(300) == 1);
+  REQUIRE(plain.image_level_at(301) == 0);
+}
+
 TEST_CASE("plateau stop: training ends once a window of whole passes stops improving", "[train][levers]") {
   const auto frames = frames_for_levers();  // 6 frames: windows of 60 for plateau_window 55
   TrainParams p = lever_params();

@@ -128,7 +128,8 @@ struct TrainParams {
   // Coarse-to-fine: the first coarse_fraction of the budget trains on frames
   // downsampled by 2^level (2x2 box filter per level, focal length and principal
   // point scaled by the same 2^-level), level falling linearly from
-  // coarse_levels to 0 over that span; the rest at full size. 0 = off.
+  // coarse_levels to 0 over that span; the rest at full size. 0 = off. With the
+  // still-scene check on, the iterations up to the check train at full size.
   int coarse_levels = 0;
   double coarse_fraction = 0.5;
 
@@ -290,6 +291,13 @@ class Trainer {
     return params_.deformable && params_.still_check_iterations > 0 ? schedule_.warmup + params_.still_check_iterations
                                                                     : 0;
   }
+  // The image level iteration `it` trains at: coarse_level_at, except that
+  // iterations up to the still-scene check train at full size. A field fitted to
+  // half-size frames learns faster than one fitted to full-size frames (cool_teddy:
+  // 0.40 dB over its bake after 500 deforming iterations at half size, 0.01 dB at
+  // full size), so checking inside the coarse span would let coarse-to-fine
+  // decide whether a scene moves.
+  int image_level_at(int it) const { return it <= still_check_iteration() ? 0 : coarse_level_at(params_, it); }
 
   // Trains until iteration `until` (at most params.iterations; earlier when the
   // plateau stop ends training), calling `progress` after every iteration.
@@ -326,7 +334,7 @@ class Trainer {
     if (it % schedule_.sh_interval == 0 && scene_.sh_degree < params_.max_sh_degree) raise_sh_degree();
 
     const std::size_t fi = next_frame();
-    const int level = coarse_level_at(params_, it);
+    const int level = image_level_at(it);
     const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_frame(fi, level);
     const bool deforming = deforming_at(it);
     const GaussianSceneGrad<Scalar>* grad = nullptr;
