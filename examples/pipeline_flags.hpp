@@ -37,7 +37,8 @@ inline const char* kPipelineFlagsUsage =
     "  --plateau-window N [--plateau-tolerance X]   stop when the mean loss over N iterations (whole passes)\n"
     "                              improves by less than X (relative; default 0.002) after densification\n"
     "  --max-gaussians N           Gaussian budget of densification\n"
-    "  --coarse-levels L           first half of training on frames downsampled by up to 2^L\n";
+    "  --coarse-levels L [--coarse-fraction F]   the first F of training (default 0.5) on frames\n"
+    "                              downsampled by up to 2^L\n";
 
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
@@ -127,6 +128,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--plateau-tolerance") p.train.plateau_tolerance = parse_double(program, flag, a.value());
   else if (flag == "--max-gaussians") p.train.densify_params.max_gaussians = std::size_t(integer(0));
   else if (flag == "--coarse-levels") p.train.coarse_levels = integer(0);
+  else if (flag == "--coarse-fraction") p.train.coarse_fraction = parse_double(program, flag, a.value());
   else return false;
   return true;
 }
