@@ -23,6 +23,16 @@ TrainParams lever_params() {
   return p;
 }
 
+// Deformable, warm-up to 100, the still-scene check at iteration 150.
+TrainParams still_check_params() {
+  TrainParams p = lever_params();
+  p.deformable = true;
+  p.warmup_iterations = 100;
+  p.deform_reference_budget = p.iterations;
+  p.still_check_iterations = 50;
+  return p;
+}
+
 GaussianScene<float> lever_init(const std::vector<TrainFrame<float>>& frames) {
   std::vector<Camera<float>> cams;
   for (const auto& f : frames) cams.push_back(f.camera);
@@ -36,11 +46,7 @@ GaussianScene<float> lever_init(const std::vector<TrainFrame<float>>& frames) {
 TEST_CASE("still-scene check: a field that gains too little is baked in and training goes on static",
           "[train][levers]") {
   const auto frames = frames_for_levers();
-  TrainParams p = lever_params();
-  p.deformable = true;
-  p.warmup_iterations = 100;
-  p.deform_reference_budget = p.iterations;
-  p.still_check_iterations = 50;
+  TrainParams p = still_check_params();
   p.still_gain_db = 1e6;  // every field gains too little
   const int check_at = 150;
   Trainer<float> t(frames, lever_init(frames), p);
@@ -81,11 +87,7 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
 TEST_CASE("still-scene check under coarse-to-fine: the iterations up to the check train at full size",
           "[train][levers]") {
   const auto frames = frames_for_levers();
-  TrainParams p = lever_params();
-  p.deformable = true;
-  p.warmup_iterations = 100;
-  p.deform_reference_budget = p.iterations;
-  p.still_check_iterations = 50;
+  TrainParams p = still_check_params();
   p.coarse_levels = 1;
   p.coarse_fraction = 0.5;  // iterations 1-300 at half size without the check
   Trainer<float> t(frames, lever_init(frames), p);
