@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/metrics/coverage.hpp"
@@ -175,9 +176,11 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
   fs::create_directories(out / "vhat");
   nlohmann::json list = nlohmann::json::array();
   std::vector<std::string> vhat_outputs;
+  parallel_for(vhat.size(), run.params.threads, [&](std::size_t i, int) {
+    write_png((out / "vhat" / view_file(int(i))).string(), vhat[i].image);
+  });
   for (std::size_t i = 0; i < vhat.size(); ++i) {
     const std::string file = "vhat/" + view_file(int(i));
-    write_png((out / file).string(), vhat[i].image);
     vhat_outputs.push_back(file);
     nlohmann::json e = orbit_file_detail::camera_json(int(i), Scalar(vhat[i].position * 360.0 / period),
                                                       vhat[i].camera);
