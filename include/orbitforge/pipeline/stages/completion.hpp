@@ -117,14 +117,14 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
   nlohmann::json content_trace = nullptr;
   if (!res.reuse_r0 && res.frames.size() >= 2) {
     constexpr int kGrid = 24;
-    std::vector<std::vector<double>> refs, frames;
     std::vector<double> ref_positions;
-    for (int v : rendered_views(run.fit.views, p.render_stride)) {
-      if (!ctx.r0_rendered(v)) continue;
-      refs.push_back(thumbnail(ctx.r0(v), kGrid));
-      ref_positions.push_back(v);
-    }
-    for (const auto& f : res.frames) frames.push_back(thumbnail(f.image, kGrid));
+    for (int v : rendered_views(run.fit.views, p.render_stride))
+      if (ctx.r0_rendered(v)) ref_positions.push_back(v);
+    std::vector<std::vector<double>> refs(ref_positions.size()), frames(res.frames.size());
+    parallel_for(refs.size(), p.threads,
+                 [&](std::size_t i, int) { refs[i] = thumbnail(ctx.r0(int(ref_positions[i])), kGrid); });
+    parallel_for(frames.size(), p.threads,
+                 [&](std::size_t i, int) { frames[i] = thumbnail(res.frames[i].image, kGrid); });
     if (!refs.empty()) {
       const ViewMatch m = match_views(frames, refs, ref_positions);
       TraceParams tp;
