@@ -70,13 +70,14 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
   const bool trained_now = !trainer.finished();
   while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
+    const ShortcutState& sc = pr.shortcuts;
     if (pr.iteration == trainer.still_check_iteration()) {
       char m[160];
       std::snprintf(m, sizeof(m), "%s: the field fits the frames %.3f dB better than its bake: %s", label.c_str(),
-                    pr.shortcuts.field_gain_db, pr.shortcuts.field_baked ? "baked in, training static" : "training deformable");
+                    sc.field_gain_db, sc.field_baked ? "baked in, training static" : "training deformable");
       run.log(m);
     }
-    if (pr.shortcuts.stopped)
+    if (sc.stopped)
       run.log(label + ": loss plateaued, training stopped at iteration " + std::to_string(pr.iteration) + " of " +
               std::to_string(tp.iterations));
     char detail[96];
