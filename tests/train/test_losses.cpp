@@ -39,15 +39,16 @@ Image<S> related_image(const Image<S>& base, std::mt19937& rng, double noise) {
 
 // The obviously-correct SSIM: the full 11x11 window at every pixel, 2D Gaussian weights
 // normalised over the full window, out-of-image pixels contributing zero.
-double reference_ssim(const Image<double>& x, const Image<double>& y) {
-  const int r = 5;
-  const double sigma = 1.5, c1 = 1e-4, c2 = 9e-4;
+double reference_ssim(const Image<double>& x, const Image<double>& y, const SsimParams& p = {}) {
+  const int r = p.window / 2, side = p.window;
+  const double sigma = p.sigma, c1 = p.c1, c2 = p.c2;
   double wsum = 0;
-  double w2[11][11];
+  std::vector<double> w2(std::size_t(side * side));
+  auto at = [&](int dx, int dy) -> double& { return w2[std::size_t((dy + r) * side + dx + r)]; };
   for (int dy = -r; dy <= r; ++dy)
     for (int dx = -r; dx <= r; ++dx) {
-      w2[dy + r][dx + r] = std::exp(-(dx * dx + dy * dy) / (2 * sigma * sigma));
-      wsum += w2[dy + r][dx + r];
+      at(dx, dy) = std::exp(-(dx * dx + dy * dy) / (2 * sigma * sigma));
+      wsum += at(dx, dy);
     }
   double total = 0;
   for (int c = 0; c < x.channels; ++c)
@@ -58,7 +59,7 @@ double reference_ssim(const Image<double>& x, const Image<double>& y) {
           for (int dx = -r; dx <= r; ++dx) {
             const int qx = px + dx, qy = py + dy;
             if (qx < 0 || qy < 0 || qx >= x.width || qy >= x.height) continue;  // zero padding
-            const double w = w2[dy + r][dx + r] / wsum;
+            const double w = at(dx, dy) / wsum;
             const double a = x(qx, qy, c), b = y(qx, qy, c);
             mx += w * a;
             my += w * b;
@@ -123,6 +124,37 @@ TEST_CASE("ssim matches a direct full-window implementation", "[train][losses]")
     CHECK(ssim(x, z, ws) == Approx(reference_ssim(x, z)).epsilon(1e-12));
     // With threads (the result must not depend on the thread count).
     CHECK(ssim(x, z, ws, SsimParams{}, 2) == ssim(x, z, ws, SsimParams{}, 1));
+  }
+}
+
+TEST_CASE("ssim with other windows, and the same value whatever the rows' banding", "[train][losses]") {
+  std::mt19937 rng(77);
+  // Windows other than the default 11 taps take the generic filter paths.
+  for (const int window : {1, 3, 7, 13}) {
+    SsimParams p;
+    p.window = window;
+    p.sigma = 0.4 + 0.2 * window;
+    for (const Size s : kSizes) {
+      const auto x = random_image<double>(s.w, s.h, s.c, rng);
+      const auto y = related_image(x, rng, 0.3);
+      SsimWorkspace<double> ws;
+      INFO("window " << window << ", " << s.w << "x" << s.h << "x" << s.c);
+      CHECK(ssim(x, y, ws, p) == Approx(reference_ssim(x, y, p)).epsilon(1e-12));
+    }
+  }
+  // 520 rows: one thread filters them in 4 bands of 130, two or three threads in
+  // 8 of 65, so rows meet the four-row column pass in different groups.
+  const auto x = random_image<float>(37, 520, 3, rng);
+  const auto y = related_image(x, rng, 0.2);
+  SsimWorkspace<float> ws;
+  const float one = ssim(x, y, ws, SsimParams{}, 1);
+  Image<float> v1, v2;
+  ssim_vjp(x, y, 1.0f, ws, v1, false, 1);
+  for (const int threads : {2, 3}) {
+    INFO(threads << " threads");
+    CHECK(ssim(x, y, ws, SsimParams{}, threads) == one);
+    ssim_vjp(x, y, 1.0f, ws, v2, false, threads);
+    CHECK(v2.data == v1.data);
   }
 }
 
