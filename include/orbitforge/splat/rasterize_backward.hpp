@@ -22,6 +22,7 @@
 // list) and records where that prefix ends as a rank; the sum skips the rest.
 // Zeroing the dead entries instead cost a scattered cache-line write each, 13%
 // of the backward kernel at 896x512 with 300k Gaussians.
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cstdint>
@@ -50,6 +51,33 @@ namespace detail {
 
 template <class T> struct identity { using type = T; };
 template <class T> using identity_t = typename identity<T>::type;  // blocks deduction (lets callers pass nullptr)
+
+// Calls f(first, last) with the pixel indices of the first and last pixel of
+// each row of the tile whose top-left pixel is (tx0, ty0).
+template <class F>
+void tile_row_spans(const TileGrid& g, int tx0, int ty0, F&& f) {
+  const int rows = std::min(g.tile_size, g.height - ty0), cols = std::min(g.tile_size, g.width - tx0);
+  for (int y = 0; y < rows; ++y) {
+    const std::size_t first = std::size_t(ty0 + y) * std::size_t(g.width) + std::size_t(tx0);
+    f(first, first + std::size_t(cols - 1));
+  }
+}
+
+// Asks for the cache lines of a[first .. last] to be read soon (a hint; nothing
+// without GCC or Clang). Prefetching the forward's output rows for writing the
+// same way made the forward ~10 % slower, so only the backward does this.
+template <class T>
+inline void prefetch_span(const T* a, std::size_t first, std::size_t last) {
+#if defined(__GNUC__)
+  constexpr std::size_t step = 64 / sizeof(T) > 0 ? 64 / sizeof(T) : 1;
+  for (std::size_t i = first; i < last; i += step) __builtin_prefetch(a + i);
+  __builtin_prefetch(a + last);
+#else
+  (void)a;
+  (void)first;
+  (void)last;
+#endif
+}
 
 enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGradG, kGradBl, kGradZ, kGradFields };
 
@@ -80,6 +108,14 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
   Scalar* sVb = sVg + lanes;
   Scalar* sVd = sVb + lanes;
   Scalar* chunk_max = sVd + lanes;  // [chunks] largest replay count of the chunk
+  // The tile's rows of T, replay count and v_colour lie a frame row apart and
+  // miss the cache: asked for all at once, the misses overlap instead of
+  // stalling the loop below one by one (about a tenth of this kernel at 896x512).
+  tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
+    prefetch_span(fwd.transmittance.data.data(), first, last);
+    prefetch_span(fwd.replay.data(), first, last);
+    prefetch_span(v_color.data.data(), 3 * first, 3 * last + 2);
+  });
   int tile_max = 0;
   for (int k = 0; k < L.chunks; ++k) {
     int cmax = 0;
