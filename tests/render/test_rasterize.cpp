@@ -7,6 +7,7 @@
 
 #include "orbitforge/splat/bin.hpp"
 #include "orbitforge/splat/rasterize.hpp"
+#include "orbitforge/splat/rasterize_backward.hpp"
 #include "render/reference_renderer.hpp"
 
 using namespace orbitforge;
@@ -258,4 +259,45 @@ TEMPLATE_TEST_CASE("alpha_power_floor is a tight lower bound of log2(1 / (255 op
   }
   CHECK(checked > 20000);
   CHECK(std::isinf(detail::alpha_power_floor(TestType(0))));
+}
+
+TEMPLATE_TEST_CASE("tiles without Gaussians: the background, and their share of its gradient", "[render]", float,
+                   double) {
+  // Gaussians in the top-left 24 x 20 pixels of a 100 x 70 image: most tiles are
+  // empty and take the rasterizers' shortcuts.
+  using S = TestType;
+  const std::array<S, 3> bg{{S(0.2), S(0.7), S(0.4)}};
+  const int w = 100, h = 70;
+  const auto s = random_splats<S>(60, 24, 20, 11);
+  check_against_reference(s, w, h, bg, same_precision_tol<S>());
+  const auto out = render_splats(s, w, h, 16, 2, bg);
+  for (int y = 40; y < h; ++y)
+    for (int x = 60; x < w; ++x) {
+      INFO(x << "," << y);
+      CHECK(out.color(x, y, 1) == bg[1]);
+      CHECK(out.transmittance(x, y) == S(1));
+      CHECK(out.depth(x, y) == S(0));
+      CHECK(out.replay[std::size_t(y * w + x)] == 0);
+    }
+  // dL/d(background) = sum over pixels of v_colour T_final, summed here directly.
+  BinWorkspace<S> bins;
+  bin_splats(s, w, h, 16, bins);
+  RasterParams<S> p;
+  p.background = bg;
+  p.threads = 2;
+  RasterWorkspace<S> ws;
+  RasterOutput<S> fwd;
+  rasterize(bins, p, fwd, ws);
+  Image<S> v_color(w, h, 3);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (auto& v : v_color.data) v = S(u(rng));
+  RasterGradOutput<S> grad;
+  rasterize_backward(bins, p, fwd, v_color, nullptr, nullptr, s.size(), grad, ws);
+  for (int c = 0; c < 3; ++c) {
+    double direct = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) direct += double(v_color(x, y, c)) * double(fwd.transmittance(x, y));
+    CHECK(double(grad.v_background[std::size_t(c)]) == Approx(direct).epsilon(sizeof(S) == 4 ? 1e-4 : 1e-12));
+  }
 }

@@ -104,6 +104,7 @@ struct RasterWorkspace {
   std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
   std::vector<Scalar> pair_grad;                    // [pairs][10] rank-major (BinWorkspace::entry_slot)
   std::vector<std::int32_t> live_rank_end;          // [tiles] entries of rank >= this were not replayed
+  std::vector<Scalar> tile_background;              // [tiles][3] each tile's share of dL/d(background)
 };
 
 namespace detail {
@@ -214,6 +215,19 @@ void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Sca
   const std::int32_t* ranks = bins.tile_ranks.data() + bins.tile_offsets[std::size_t(t)];
   const int n = int(bins.tile_offsets[std::size_t(t) + 1] - bins.tile_offsets[std::size_t(t)]);
   const SplatRecord<Scalar>* rec = bins.records.data();
+  if (n == 0) {  // no Gaussian here: what the blend would store, written directly
+    for (int y = ty0; y < std::min(g.height, ty0 + g.tile_size); ++y) {
+      const std::size_t first = std::size_t(y) * std::size_t(g.width) + std::size_t(tx0);
+      const std::size_t count = std::size_t(std::min(g.tile_size, g.width - tx0));
+      for (std::size_t i = first; i < first + count; ++i)
+        for (std::size_t c = 0; c < 3; ++c) out.color.data[3 * i + c] = params.background[c];
+      std::fill_n(out.transmittance.data.begin() + std::ptrdiff_t(first), count, Scalar(1));
+      std::fill_n(out.depth.data.begin() + std::ptrdiff_t(first), count, Scalar(0));
+      std::fill_n(out.count.data.begin() + std::ptrdiff_t(first), count, 0);
+      std::fill_n(out.replay.begin() + std::ptrdiff_t(first), count, 0);
+    }
+    return;
+  }
   std::uint64_t evaluated = 0, contributions = 0;
 
   constexpr int C = kChunksTogether;

@@ -86,7 +86,8 @@ template <class B, bool Depth, class Scalar>
 void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
                              const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
                              const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
-                             Scalar* scratch, Scalar* pair_grad, std::int32_t& live_rank_end) {
+                             Scalar* scratch, Scalar* pair_grad, std::int32_t& live_rank_end,
+                             Scalar* v_background) {
   using M = simd::mask_t<B>;
   using Rules = RasterRules<Scalar>;
   constexpr std::size_t N = B::size;
@@ -98,6 +99,20 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
   const int n = int(bins.tile_offsets[std::size_t(t) + 1] - off);
   const SplatRecord<Scalar>* rec = bins.records.data();
   const std::size_t lanes = std::size_t(L.chunks) * N;
+
+  // v_background (3 values): this tile's share of dL/d(background) = sum over
+  // its pixels of v_colour T_final, in pixel order.
+  v_background[0] = v_background[1] = v_background[2] = Scalar(0);
+  auto add_background = [&](std::size_t pi, Scalar T) {
+    for (std::size_t c = 0; c < 3; ++c) v_background[c] += v_color.data[3 * pi + c] * T;
+  };
+  if (n == 0) {  // no Gaussian here: only the background's share
+    tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
+      for (std::size_t pi = first; pi <= last; ++pi) add_background(pi, fwd.transmittance.data[pi]);
+    });
+    live_rank_end = std::numeric_limits<std::int32_t>::max();
+    return;
+  }
 
   // Per-lane state, tile-local: T, acc, replay count, v_r, v_g, v_b, v_d.
   Scalar* sT = scratch;
@@ -129,6 +144,7 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
       }
       const std::size_t pi = std::size_t(y) * std::size_t(g.width) + std::size_t(x);
       const Scalar T = fwd.transmittance.data[pi];
+      add_background(pi, T);
       const Scalar vr = v_color.data[3 * pi], vg = v_color.data[3 * pi + 1], vb = v_color.data[3 * pi + 2];
       const Scalar va = v_alpha ? v_alpha->data[pi] : Scalar(0);
       sT[li] = T;
@@ -262,12 +278,14 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
                        "rasterize_backward: the per-entry gradients of ", bins.pairs(), " tile-list entries");
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
+  ws.tile_background.resize(3 * std::size_t(g.tile_count()));
 
   auto run = [&](auto depth) {
     parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
       detail::rasterize_backward_tile<B, decltype(depth)::value>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha,
                                                                  v_depth, ws.worker_scratch[std::size_t(w)].data(),
-                                                                 ws.pair_grad.data(), ws.live_rank_end[t]);
+                                                                 ws.pair_grad.data(), ws.live_rank_end[t],
+                                                                 ws.tile_background.data() + 3 * t);
     });
   };
   if (v_depth) run(std::true_type{});
@@ -300,10 +318,11 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
       for (std::size_t f = 0; f < F; ++f) fields[f][i] = sum[f];
     }
   });
-  // Background: colour = ... + T_final background.
+  // Background: colour = ... + T_final background; the tiles' shares in tile
+  // order (this was a serial pass over every pixel).
   out.v_background = {{0, 0, 0}};
-  for (std::size_t p = 0; p < g.pixel_count(); ++p)
-    for (int c = 0; c < 3; ++c) out.v_background[std::size_t(c)] += v_color.data[3 * p + std::size_t(c)] * fwd.transmittance.data[p];
+  for (std::size_t t = 0; t < std::size_t(g.tile_count()); ++t)
+    for (std::size_t c = 0; c < 3; ++c) out.v_background[c] += ws.tile_background[3 * t + c];
   out.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
