@@ -9,6 +9,12 @@
 # e.g. scripts/bench_paper_budget.sh out/budget "cool_teddy doll" --still-check 500
 # Runs build/examples/full_pipeline; the data is ../shared/data/v3d (ORBITFORGE_DATA
 # overrides). Each run's report stays in OUT_ROOT/VIDEO/report.json.
+#
+# With --protocol paper among the flags the frames keep the protocol's sizes (G0
+# at the source frames' own, the canonical views at 896x512). BENCH_RESUME=1
+# keeps an existing run directory, so that a run longer than one sitting (the
+# paper's protocol takes hours) goes on from its last verified checkpoint; its
+# stage times then cover only what ran after the resume.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out_root=${1:?usage: bench_paper_budget.sh OUT_ROOT "VIDEO ..." [flags]}
@@ -20,12 +26,18 @@ program=build/examples/full_pipeline
 mkdir -p "$out_root"
 echo "| video | method wall s | orbit | G0 | static diagnostics | completion | G1 | report | R0 sup held-out dB | R1 sup / gap held-out dB |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
+size=(--width 896 --height 512)
+prev=
+for f in "$@"; do
+  [[ $prev == --protocol && $f == paper ]] && size=()  # the protocol sets the sizes
+  prev=$f
+done
 for v in $videos; do
   [[ -d $data/$v ]] || { echo "bench_paper_budget: no recorded video $data/$v" >&2; exit 1; }
-  rm -rf "${out_root:?}/$v"
+  [[ ${BENCH_RESUME:-0} == 1 ]] || { rm -rf "${out_root:?}/$v"; : > "$out_root/$v.log"; }
   "$program" --colmap "$data/$v" --frames 1-33 --holdout-every 8 --completion oracle --no-comparisons \
-    --iters 10000 --iters-g1 10000 --width 896 --height 512 --threads 2 --quiet "$@" --out "$out_root/$v" \
-    > "$out_root/$v.log" 2>&1 || { echo "bench_paper_budget: $v failed, see $out_root/$v.log" >&2; exit 1; }
+    --iters 10000 --iters-g1 10000 "${size[@]}" --threads 2 --quiet "$@" --out "$out_root/$v" \
+    >> "$out_root/$v.log" 2>&1 || { echo "bench_paper_budget: $v failed, see $out_root/$v.log" >&2; exit 1; }
   python3 - "$out_root/$v/report.json" "$v" <<'EOF'
 import json, sys
 r = json.load(open(sys.argv[1]))
