@@ -109,6 +109,17 @@ struct RasterWorkspace {
 
 namespace detail {
 
+// Calls f(first, last) with the pixel indices of the first and last pixel of
+// each row of the tile whose top-left pixel is (tx0, ty0).
+template <class F>
+void tile_row_spans(const TileGrid& g, int tx0, int ty0, F&& f) {
+  const int rows = std::min(g.tile_size, g.height - ty0), cols = std::min(g.tile_size, g.width - tx0);
+  for (int y = 0; y < rows; ++y) {
+    const std::size_t first = std::size_t(ty0 + y) * std::size_t(g.width) + std::size_t(tx0);
+    f(first, first + std::size_t(cols - 1));
+  }
+}
+
 template <class Scalar>
 void prepare_raster_output(const TileGrid& g, RasterOutput<Scalar>& out) {
   auto shape = [&](auto& img, int c) {
@@ -216,16 +227,15 @@ void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Sca
   const int n = int(bins.tile_offsets[std::size_t(t) + 1] - bins.tile_offsets[std::size_t(t)]);
   const SplatRecord<Scalar>* rec = bins.records.data();
   if (n == 0) {  // no Gaussian here: what the blend would store, written directly
-    for (int y = ty0; y < std::min(g.height, ty0 + g.tile_size); ++y) {
-      const std::size_t first = std::size_t(y) * std::size_t(g.width) + std::size_t(tx0);
-      const std::size_t count = std::size_t(std::min(g.tile_size, g.width - tx0));
-      for (std::size_t i = first; i < first + count; ++i)
+    tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
+      const std::size_t count = last - first + 1;
+      for (std::size_t i = first; i <= last; ++i)
         for (std::size_t c = 0; c < 3; ++c) out.color.data[3 * i + c] = params.background[c];
       std::fill_n(out.transmittance.data.begin() + std::ptrdiff_t(first), count, Scalar(1));
       std::fill_n(out.depth.data.begin() + std::ptrdiff_t(first), count, Scalar(0));
       std::fill_n(out.count.data.begin() + std::ptrdiff_t(first), count, 0);
       std::fill_n(out.replay.begin() + std::ptrdiff_t(first), count, 0);
-    }
+    });
     return;
   }
   std::uint64_t evaluated = 0, contributions = 0;

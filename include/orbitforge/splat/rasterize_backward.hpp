@@ -52,17 +52,6 @@ namespace detail {
 template <class T> struct identity { using type = T; };
 template <class T> using identity_t = typename identity<T>::type;  // blocks deduction (lets callers pass nullptr)
 
-// Calls f(first, last) with the pixel indices of the first and last pixel of
-// each row of the tile whose top-left pixel is (tx0, ty0).
-template <class F>
-void tile_row_spans(const TileGrid& g, int tx0, int ty0, F&& f) {
-  const int rows = std::min(g.tile_size, g.height - ty0), cols = std::min(g.tile_size, g.width - tx0);
-  for (int y = 0; y < rows; ++y) {
-    const std::size_t first = std::size_t(ty0 + y) * std::size_t(g.width) + std::size_t(tx0);
-    f(first, first + std::size_t(cols - 1));
-  }
-}
-
 // Asks for the cache lines of a[first .. last] to be read soon (a hint; nothing
 // without GCC or Clang). Prefetching the forward's output rows for writing the
 // same way made the forward ~10 % slower, so only the backward does this.
@@ -102,14 +91,15 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
 
   // v_background (3 values): this tile's share of dL/d(background) = sum over
   // its pixels of v_colour T_final, in pixel order.
-  v_background[0] = v_background[1] = v_background[2] = Scalar(0);
+  Scalar share[3] = {0, 0, 0};
   auto add_background = [&](std::size_t pi, Scalar T) {
-    for (std::size_t c = 0; c < 3; ++c) v_background[c] += v_color.data[3 * pi + c] * T;
+    for (std::size_t c = 0; c < 3; ++c) share[c] += v_color.data[3 * pi + c] * T;
   };
   if (n == 0) {  // no Gaussian here: only the background's share
     tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
       for (std::size_t pi = first; pi <= last; ++pi) add_background(pi, fwd.transmittance.data[pi]);
     });
+    std::copy(share, share + 3, v_background);
     live_rank_end = std::numeric_limits<std::int32_t>::max();
     return;
   }
@@ -159,6 +149,7 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
     chunk_max[k] = Scalar(cmax);
     tile_max = std::max(tile_max, cmax);
   }
+  std::copy(share, share + 3, v_background);
   // Entries from tile_max on (ranks >= live_rank_end) are never replayed: their
   // slots are left unwritten and skipped by the sum.
   const std::uint32_t* slot = bins.entry_slot.data() + off;
