@@ -17,6 +17,7 @@
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/splat/project_gaussian.hpp"
 #include "orbitforge/splat/project_lanes.hpp"
+#include "orbitforge/splat/project_lanes_vjp.hpp"
 #include "orbitforge/splat/projected.hpp"
 #include "orbitforge/splat/scene_adaptor.hpp"
 #include "orbitforge/splat/scene_grad.hpp"
@@ -88,62 +89,27 @@ void project_scene_vjp_into(const Scene& scene, const Camera<typename Scene::sca
                         &v_in.v_opacity, &v_in.v_color_r, &v_in.v_color_g, &v_in.v_color_b, &v_in.v_depth})
     ensure(v->size() == n, "project_scene_vjp: a ProjectedSplatsGrad array has ", v->size(), " entries, expected ",
            n);
-  const Scalar half_w = Scalar(0.5) * Scalar(cam.width), half_h = Scalar(0.5) * Scalar(cam.height);
-  const int sh_first = freeze.sh_dc ? 1 : 0, sh_end = freeze.sh_rest ? 1 : k_count;
-  const bool xyzw = out.rotation_order == QuatOrder::xyzw;
+  detail::GradWanted want;
+  want.mean = !freeze.means;
+  want.cov3 = !(freeze.rotations && freeze.scales);
+  want.sh = !(freeze.sh_dc && freeze.sh_rest);
+  want.sh_first = freeze.sh_dc ? 1 : 0;
+  want.sh_end = freeze.sh_rest ? 1 : k_count;
 
   const std::size_t chunk = std::max<std::size_t>(1, params.chunk);
   const std::size_t chunks = (n + chunk - 1) / chunk;
   parallel_for(chunks, threads, [&](std::size_t ci, int) {
-    Scalar sh_buf[48], v_sh[48];
-    Scalar v_mean[3] = {0, 0, 0}, v_quat[4] = {0, 0, 0, 0}, v_scale[3] = {0, 0, 0}, v_logit = 0;
-    GaussianParams<Scalar> g;
-    SplatGrad<Scalar> vg;
+    using B = simd::native_batch<Scalar>;
+    constexpr std::size_t W = B::size;
+    detail::GaussianLanes<Scalar, int(W)> lanes{};
+    detail::GradLanes<Scalar, int(W)> grads;
     const std::size_t end = std::min(n, (ci + 1) * chunk);
-    for (std::size_t i = ci * chunk; i < end; ++i) {
-      const bool kept = fwd.radius[i] > 0;
-      Scalar scale[3] = {0, 0, 0}, opacity = 0, screen = 0, screen_ndc = 0;
-      if (kept) {
-        gather_gaussian(scene, i, degree, g, sh_buf);
-        vg.v_mean_x = v_in.v_mean_x[i];
-        vg.v_mean_y = v_in.v_mean_y[i];
-        vg.v_conic_a = v_in.v_conic_a[i];
-        vg.v_conic_b = v_in.v_conic_b[i];
-        vg.v_conic_c = v_in.v_conic_c[i];
-        vg.v_opacity = v_in.v_opacity[i];
-        vg.v_color[0] = v_in.v_color_r[i];
-        vg.v_color[1] = v_in.v_color_g[i];
-        vg.v_color[2] = v_in.v_color_b[i];
-        vg.v_depth = v_in.v_depth[i];
-        project_gaussian_vjp(cam, g, vg, freeze, v_mean, v_quat, v_scale, &v_logit, v_sh);
-        for (int a = 0; a < 3; ++a) scale[a] = g.scale[a];
-        opacity = vg.v_opacity;
-        screen = std::sqrt(vg.v_mean_x * vg.v_mean_x + vg.v_mean_y * vg.v_mean_y);
-        const Scalar nx = vg.v_mean_x * half_w, ny = vg.v_mean_y * half_h;
-        screen_ndc = std::sqrt(nx * nx + ny * ny);
-      }
-      const Scalar z = Scalar(0);
-      if (out.means)
-        for (int a = 0; a < 3; ++a) out.means.at(i)[a] = kept ? v_mean[a] : z;
-      if (out.rotations) {
-        Scalar* q = out.rotations.at(i);
-        for (int a = 0; a < 4; ++a) q[xyzw ? (a + 3) % 4 : a] = kept ? v_quat[a] : z;  // w goes last for xyzw
-      }
-      for (int a = 0; a < 3; ++a) {
-        if (out.scales) out.scales.at(i)[a] = kept ? v_scale[a] : z;
-        if (out.log_scales) out.log_scales.at(i)[a] = kept ? v_scale[a] * scale[a] : z;  // ds / dlog s = s
-      }
-      if (out.opacity_logits) *out.opacity_logits.at(i) = kept ? v_logit : z;
-      if (out.opacities) *out.opacities.at(i) = kept ? opacity : z;
-      if (out.sh) {
-        char* base = reinterpret_cast<char*>(out.sh.at(i));
-        for (int k = sh_first; k < sh_end; ++k) {
-          Scalar* dst = reinterpret_cast<Scalar*>(base + std::ptrdiff_t(k) * out.sh_coefficient_stride_bytes);
-          for (int c = 0; c < 3; ++c) dst[c] = kept ? v_sh[3 * k + c] : z;
-        }
-      }
-      if (out.screen_grad_norm) *out.screen_grad_norm.at(i) = screen;
-      if (out.screen_grad_ndc_norm) *out.screen_grad_ndc_norm.at(i) = screen_ndc;
+    constexpr std::size_t ahead = 4 * W;  // prefetch distance (adaptors that offer it)
+    for (std::size_t i = ci * chunk; i < end; i += W) {
+      if constexpr (adaptor_detail::has_prefetch<Scene>::value)
+        if (i + ahead < n) scene.prefetch(i + ahead, std::min(W, n - (i + ahead)));
+      detail::project_lanes_vjp<B>(scene, cam, degree, i, int(std::min(W, end - i)), fwd, v_in, out, freeze, want,
+                                   lanes, grads);
     }
   });
 }

@@ -64,6 +64,39 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
 template <class B>
 inline B dist_to_int(const B& x) { return simd::abs(x - simd::round_nearest(x)); }
 
+// SH basis b[k] of each lane's viewing direction (mean - camera centre), and the
+// unit direction d; returns 1 / |mean - centre| (0 for degree 0, which reads no
+// direction).
+template <class B>
+inline B lanes_sh_basis(int degree, const B& x, const B& y, const B& z,
+                        const ProjectionCamera<typename B::value_type>& cam, B b[16], B d[3]) {
+  using Scalar = typename B::value_type;
+  if (degree == 0) {
+    b[0] = B(ShConstants<Scalar>::C0);
+    return B(Scalar(0));
+  }
+  const B dx = x - B(cam.center[0]), dy = y - B(cam.center[1]), dz = z - B(cam.center[2]);
+  const B inv = B(Scalar(1)) / simd::sqrt(dx * dx + dy * dy + dz * dz);
+  d[0] = dx * inv;
+  d[1] = dy * inv;
+  d[2] = dz * inv;
+  sh_basis(degree, d[0], d[1], d[2], b);
+  return inv;
+}
+
+// Unclamped colour sum_k b[k] sh[k][c] + 0.5 of each lane, in sh_to_color's order.
+template <class B, int W>
+inline void lanes_sh_raw_color(int k_count, const B* b, const GaussianLanes<typename B::value_type, W>& L,
+                               B raw[3]) {
+  using Scalar = typename B::value_type;
+  using G = GaussianLanes<Scalar, W>;
+  for (int c = 0; c < 3; ++c) {
+    B acc(Scalar(0));
+    for (int k = 0; k < k_count; ++k) acc = acc + b[k] * B::load_unaligned(L[G::kSh + 3 * k + c]);
+    raw[c] = acc + B(Scalar(0.5));
+  }
+}
+
 // Outcome codes of a lane: CullReason values; kLaneScalar: project_gaussian
 // gives everything (the batch values are unusable: overflow, degenerate 2D
 // covariance); kLaneDecision: project_gaussian gives the decision (reason,
@@ -261,46 +294,12 @@ inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B:
   }
 
   // SH colour in the direction mean - camera centre, + 0.5, clamped at 0.
-  using C = ShConstants<Scalar>;
-  B cr = zero, cg = zero, cb = zero;
-  auto acc = [&](int k, const B& basis) {
-    cr = cr + basis * ld(L[G::kSh + 3 * k + 0]);
-    cg = cg + basis * ld(L[G::kSh + 3 * k + 1]);
-    cb = cb + basis * ld(L[G::kSh + 3 * k + 2]);
-  };
-  acc(0, B(C::C0));
-  if (degree > 0) {
-    const B dx = x - B(cam.center[0]), dy = y - B(cam.center[1]), dz = z - B(cam.center[2]);
-    const B dinv = one / simd::sqrt(dx * dx + dy * dy + dz * dz);
-    const B ux = dx * dinv, uy = dy * dinv, uz = dz * dinv;
-    acc(1, -B(C::C1) * uy);
-    acc(2, B(C::C1) * uz);
-    acc(3, -B(C::C1) * ux);
-    if (degree > 1) {
-      const B xx = ux * ux, yy = uy * uy, zz = uz * uz, xy = ux * uy, yz = uy * uz, xz = ux * uz;
-      acc(4, B(C::C2[0]) * xy);
-      acc(5, B(C::C2[1]) * yz);
-      acc(6, B(C::C2[2]) * (two * zz - xx - yy));
-      acc(7, B(C::C2[3]) * xz);
-      acc(8, B(C::C2[4]) * (xx - yy));
-      if (degree > 2) {
-        const B three(Scalar(3)), four(Scalar(4));
-        acc(9, B(C::C3[0]) * uy * (three * xx - yy));
-        acc(10, B(C::C3[1]) * xy * uz);
-        acc(11, B(C::C3[2]) * uy * (four * zz - xx - yy));
-        acc(12, B(C::C3[3]) * uz * (two * zz - three * xx - three * yy));
-        acc(13, B(C::C3[4]) * ux * (four * zz - xx - yy));
-        acc(14, B(C::C3[5]) * uz * (xx - yy));
-        acc(15, B(C::C3[6]) * ux * (xx - three * yy));
-      }
-    }
-  }
-  cr = cr + half;
-  cg = cg + half;
-  cb = cb + half;
-  cr = simd::select(cr < zero, zero, cr);
-  cg = simd::select(cg < zero, zero, cg);
-  cb = simd::select(cb < zero, zero, cb);
+  B b[16], d[3], raw[3];
+  lanes_sh_basis(degree, x, y, z, cam, b, d);
+  lanes_sh_raw_color(k_count, b, L, raw);
+  const B cr = simd::select(raw[0] < zero, zero, raw[0]);
+  const B cg = simd::select(raw[1] < zero, zero, raw[1]);
+  const B cb = simd::select(raw[2] < zero, zero, raw[2]);
 
   // Outcome per lane.
   B code = simd::select(bad_in, B(Scalar(int(CullReason::nonfinite))), zero);

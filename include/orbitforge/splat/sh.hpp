@@ -13,10 +13,20 @@
 // that mean gradients are complete. Degree 0 does not depend on the direction
 // (dir is not read and v_dir is zero).
 #include <cmath>
+#include <type_traits>
 
 #include "orbitforge/splat/gaussians.hpp"
 
 namespace orbitforge {
+
+namespace detail {
+// The scalar of a value type: itself, or a SIMD batch's value_type (sh_basis and
+// sh_basis_vjp also run on batches of directions, in splat/project_lanes.hpp).
+template <class T, class = void>
+struct lane_scalar { using type = T; };
+template <class T>
+struct lane_scalar<T, std::void_t<typename T::value_type>> { using type = typename T::value_type; };
+}  // namespace detail
 
 template <class Scalar>
 struct ShConstants {
@@ -34,7 +44,7 @@ struct ShConstants {
 // Basis values b[k], k < (degree + 1)^2, at the unit direction (x, y, z).
 template <class Scalar>
 inline void sh_basis(int degree, Scalar x, Scalar y, Scalar z, Scalar* b) {
-  using C = ShConstants<Scalar>;
+  using C = ShConstants<typename detail::lane_scalar<Scalar>::type>;
   b[0] = C::C0;
   if (degree < 1) return;
   b[1] = -C::C1 * y;
@@ -63,8 +73,8 @@ template <class Scalar>
 inline void sh_basis_vjp(int degree, Scalar x, Scalar y, Scalar z,  // inputs
                          const Scalar* v_b,                          // grad outputs [K]
                          Scalar v_xyz[3]) {                          // grad inputs [3]
-  using C = ShConstants<Scalar>;
-  Scalar gx = 0, gy = 0, gz = 0;
+  using C = ShConstants<typename detail::lane_scalar<Scalar>::type>;
+  Scalar gx(0), gy(0), gz(0);
   if (degree >= 1) {
     gy -= C::C1 * v_b[1];
     gz += C::C1 * v_b[2];
