@@ -64,6 +64,71 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
 template <class B>
 inline B dist_to_int(const B& x) { return simd::abs(x - simd::round_nearest(x)); }
 
+// The covariance chain shared by the forward and VJP batch paths: the rotation
+// of q / |q|, Sigma = (R diag(s)) (R diag(s))^T, the EWA Jacobian with the x/z,
+// y/z clamp, T = J W and cov2d = T Sigma T^T + eps2d I.
+template <class B>
+struct LanesCov2d {
+  B qw, qx, qy, qz, qinv;         // q / |q| and 1 / |q|
+  B Rq[3][3], Mq[3][3], S[3][3];  // rotation, Rq diag(s), Sigma
+  B iz, iz2, ux, uy, clx, cly;    // 1 / t_z, t_x / t_z, t_y / t_z and their clamped values
+  B j00, j02, j11, j12;           // J = [[j00, 0, j02], [0, j11, j12]]
+  B T0[3], T1[3], TS0[3], TS1[3]; // the rows of T and of T Sigma
+  B cov0, cov1, cov2;             // cov2d (xx, xy, yy)
+};
+
+template <class B, int W>
+inline void lanes_cov2d(const ProjectionCamera<typename B::value_type>& cam,
+                        const GaussianLanes<typename B::value_type, W>& L, const B t[3], const B s[3],
+                        LanesCov2d<B>& c) {
+  using Scalar = typename B::value_type;
+  using G = GaussianLanes<Scalar, W>;
+  const B one(Scalar(1)), two(Scalar(2));
+  const B qw = B::load_unaligned(L[G::kQuat]), qx = B::load_unaligned(L[G::kQuat + 1]);
+  const B qy = B::load_unaligned(L[G::kQuat + 2]), qz = B::load_unaligned(L[G::kQuat + 3]);
+  c.qinv = one / simd::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
+  c.qw = qw * c.qinv; c.qx = qx * c.qinv; c.qy = qy * c.qinv; c.qz = qz * c.qinv;
+  const B &w = c.qw, &x = c.qx, &y = c.qy, &z = c.qz;
+  c.Rq[0][0] = one - two * (y * y + z * z);
+  c.Rq[0][1] = two * (x * y - w * z);
+  c.Rq[0][2] = two * (x * z + w * y);
+  c.Rq[1][0] = two * (x * y + w * z);
+  c.Rq[1][1] = one - two * (x * x + z * z);
+  c.Rq[1][2] = two * (y * z - w * x);
+  c.Rq[2][0] = two * (x * z - w * y);
+  c.Rq[2][1] = two * (y * z + w * x);
+  c.Rq[2][2] = one - two * (x * x + y * y);
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) c.Mq[r][k] = c.Rq[r][k] * s[k];
+  for (int r = 0; r < 3; ++r)
+    for (int k = r; k < 3; ++k)
+      c.S[r][k] = c.S[k][r] = c.Mq[r][0] * c.Mq[k][0] + c.Mq[r][1] * c.Mq[k][1] + c.Mq[r][2] * c.Mq[k][2];
+
+  c.iz = one / t[2];
+  c.iz2 = c.iz * c.iz;
+  const B lx(cam.lim_x), ly(cam.lim_y), fx(cam.fx), fy(cam.fy);
+  c.ux = t[0] * c.iz;
+  c.uy = t[1] * c.iz;
+  c.clx = simd::min(lx, simd::max(-lx, c.ux));
+  c.cly = simd::min(ly, simd::max(-ly, c.uy));
+  c.j00 = fx * c.iz;
+  c.j02 = -fx * (c.clx * t[2]) * c.iz2;
+  c.j11 = fy * c.iz;
+  c.j12 = -fy * (c.cly * t[2]) * c.iz2;
+  for (int k = 0; k < 3; ++k) {
+    c.T0[k] = c.j00 * B(cam.R(0, k)) + c.j02 * B(cam.R(2, k));
+    c.T1[k] = c.j11 * B(cam.R(1, k)) + c.j12 * B(cam.R(2, k));
+  }
+  for (int k = 0; k < 3; ++k) {
+    c.TS0[k] = c.T0[0] * c.S[0][k] + c.T0[1] * c.S[1][k] + c.T0[2] * c.S[2][k];
+    c.TS1[k] = c.T1[0] * c.S[0][k] + c.T1[1] * c.S[1][k] + c.T1[2] * c.S[2][k];
+  }
+  const B eps2d(cam.eps2d);
+  c.cov0 = c.TS0[0] * c.T0[0] + c.TS0[1] * c.T0[1] + c.TS0[2] * c.T0[2] + eps2d;
+  c.cov1 = c.TS0[0] * c.T1[0] + c.TS0[1] * c.T1[1] + c.TS0[2] * c.T1[2];
+  c.cov2 = c.TS1[0] * c.T1[0] + c.TS1[1] * c.T1[1] + c.TS1[2] * c.T1[2] + eps2d;
+}
+
 // SH basis b[k] of each lane's viewing direction (mean - camera centre), and the
 // unit direction d; returns 1 / |mean - centre| (0 for degree 0, which reads no
 // direction).
@@ -178,44 +243,12 @@ inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B:
   const M cull_near = ~decided & (t[2] <= near);
   decided = decided | cull_near;
 
-  // Rotation of q / |q| and Sigma = (R diag(s)) (R diag(s))^T.
-  B qw = ld(L[G::kQuat]), qx = ld(L[G::kQuat + 1]), qy = ld(L[G::kQuat + 2]), qz = ld(L[G::kQuat + 3]);
-  const B qinv = one / simd::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
-  qw = qw * qinv; qx = qx * qinv; qy = qy * qinv; qz = qz * qinv;
-  const B two(Scalar(2));
-  B Mq[3][3];
-  Mq[0][0] = (one - two * (qy * qy + qz * qz)) * s[0];
-  Mq[0][1] = (two * (qx * qy - qw * qz)) * s[1];
-  Mq[0][2] = (two * (qx * qz + qw * qy)) * s[2];
-  Mq[1][0] = (two * (qx * qy + qw * qz)) * s[0];
-  Mq[1][1] = (one - two * (qx * qx + qz * qz)) * s[1];
-  Mq[1][2] = (two * (qy * qz - qw * qx)) * s[2];
-  Mq[2][0] = (two * (qx * qz - qw * qy)) * s[0];
-  Mq[2][1] = (two * (qy * qz + qw * qx)) * s[1];
-  Mq[2][2] = (one - two * (qx * qx + qy * qy)) * s[2];
-  B S[3][3];
-  for (int r = 0; r < 3; ++r)
-    for (int c = r; c < 3; ++c) S[r][c] = S[c][r] = Mq[r][0] * Mq[c][0] + Mq[r][1] * Mq[c][1] + Mq[r][2] * Mq[c][2];
-
-  // EWA Jacobian with the x/z, y/z clamp; T = J W; cov2d = T Sigma T^T + eps2d I.
-  const B iz = one / t[2], iz2 = iz * iz;
+  LanesCov2d<B> c2;
+  lanes_cov2d(cam, L, t, s, c2);
+  const B &iz = c2.iz, &j00 = c2.j00, &j02 = c2.j02, &j11 = c2.j11, &j12 = c2.j12;
+  const B &cov0 = c2.cov0, &cov1 = c2.cov1, &cov2 = c2.cov2;
+  const B two(Scalar(2)), eps2d(cam.eps2d);
   const B lx(cam.lim_x), ly(cam.lim_y), fx(cam.fx), fy(cam.fy);
-  const B clx = simd::min(lx, simd::max(-lx, t[0] * iz)), cly = simd::min(ly, simd::max(-ly, t[1] * iz));
-  const B j00 = fx * iz, j02 = -fx * (clx * t[2]) * iz2, j11 = fy * iz, j12 = -fy * (cly * t[2]) * iz2;
-  B T0[3], T1[3];
-  for (int c = 0; c < 3; ++c) {
-    T0[c] = j00 * B(cam.R(0, c)) + j02 * B(cam.R(2, c));
-    T1[c] = j11 * B(cam.R(1, c)) + j12 * B(cam.R(2, c));
-  }
-  B TS0[3], TS1[3];
-  for (int c = 0; c < 3; ++c) {
-    TS0[c] = T0[0] * S[0][c] + T0[1] * S[1][c] + T0[2] * S[2][c];
-    TS1[c] = T1[0] * S[0][c] + T1[1] * S[1][c] + T1[2] * S[2][c];
-  }
-  const B eps2d(cam.eps2d);
-  const B cov0 = TS0[0] * T0[0] + TS0[1] * T0[1] + TS0[2] * T0[2] + eps2d;
-  const B cov1 = TS0[0] * T1[0] + TS0[1] * T1[1] + TS0[2] * T1[2];
-  const B cov2 = TS1[0] * T1[0] + TS1[1] * T1[1] + TS1[2] * T1[2] + eps2d;
   const B det = cov0 * cov2 - cov1 * cov1;
   const B idet = one / det;
   const B conic0 = cov2 * idet, conic1 = -cov1 * idet, conic2 = cov0 * idet;

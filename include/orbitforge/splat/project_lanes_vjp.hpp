@@ -132,45 +132,21 @@ inline void project_lanes_vjp(const Scene& scene, const ProjectionCamera<typenam
     B t[3];
     for (int k = 0; k < 3; ++k)
       t[k] = B(cam.R(k, 0)) * x + B(cam.R(k, 1)) * y + B(cam.R(k, 2)) * z + B(cam.t[k]);
-    B qw = ld(L[G::kQuat]), qx = ld(L[G::kQuat + 1]), qy = ld(L[G::kQuat + 2]), qz = ld(L[G::kQuat + 3]);
-    const B qinv = one / simd::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
-    qw = qw * qinv; qx = qx * qinv; qy = qy * qinv; qz = qz * qinv;
-    B Rq[3][3];
-    Rq[0][0] = one - two * (qy * qy + qz * qz);
-    Rq[0][1] = two * (qx * qy - qw * qz);
-    Rq[0][2] = two * (qx * qz + qw * qy);
-    Rq[1][0] = two * (qx * qy + qw * qz);
-    Rq[1][1] = one - two * (qx * qx + qz * qz);
-    Rq[1][2] = two * (qy * qz - qw * qx);
-    Rq[2][0] = two * (qx * qz - qw * qy);
-    Rq[2][1] = two * (qy * qz + qw * qx);
-    Rq[2][2] = one - two * (qx * qx + qy * qy);
-    B Mq[3][3], S[3][3];
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) Mq[r][c] = Rq[r][c] * s[c];
-    for (int r = 0; r < 3; ++r)
-      for (int c = r; c < 3; ++c) S[r][c] = S[c][r] = Mq[r][0] * Mq[c][0] + Mq[r][1] * Mq[c][1] + Mq[r][2] * Mq[c][2];
-
-    const B iz = one / t[2], iz2 = iz * iz, iz3 = iz2 * iz;
+    LanesCov2d<B> c2;
+    lanes_cov2d(cam, L, t, s, c2);
+    const B &qw = c2.qw, &qx = c2.qx, &qy = c2.qy, &qz = c2.qz, &qinv = c2.qinv;
+    const B &iz = c2.iz, &iz2 = c2.iz2, &clx = c2.clx, &cly = c2.cly;
+    const B &cov0 = c2.cov0, &cov1 = c2.cov1, &cov2 = c2.cov2;
+    const B(&Rq)[3][3] = c2.Rq;
+    const B(&Mq)[3][3] = c2.Mq;
+    const B(&T0)[3] = c2.T0;
+    const B(&T1)[3] = c2.T1;
+    const B(&TS0)[3] = c2.TS0;
+    const B(&TS1)[3] = c2.TS1;
+    const B iz3 = iz2 * iz;
     const B lx(cam.lim_x), ly(cam.lim_y), fx(cam.fx), fy(cam.fy);
-    const B ux = t[0] * iz, uy = t[1] * iz;
-    const B clx = simd::min(lx, simd::max(-lx, ux)), cly = simd::min(ly, simd::max(-ly, uy));
-    const M in_x = (ux > -lx) & (ux < lx), in_y = (uy > -ly) & (uy < ly);
+    const M in_x = (c2.ux > -lx) & (c2.ux < lx), in_y = (c2.uy > -ly) & (c2.uy < ly);
     const B tx = clx * t[2], ty = cly * t[2];
-    const B j00 = fx * iz, j02 = -fx * tx * iz2, j11 = fy * iz, j12 = -fy * ty * iz2;
-    B T0[3], T1[3], TS0[3], TS1[3];
-    for (int c = 0; c < 3; ++c) {
-      T0[c] = j00 * B(cam.R(0, c)) + j02 * B(cam.R(2, c));
-      T1[c] = j11 * B(cam.R(1, c)) + j12 * B(cam.R(2, c));
-    }
-    for (int c = 0; c < 3; ++c) {
-      TS0[c] = T0[0] * S[0][c] + T0[1] * S[1][c] + T0[2] * S[2][c];
-      TS1[c] = T1[0] * S[0][c] + T1[1] * S[1][c] + T1[2] * S[2][c];
-    }
-    const B eps2d(cam.eps2d);
-    const B cov0 = TS0[0] * T0[0] + TS0[1] * T0[1] + TS0[2] * T0[2] + eps2d;
-    const B cov1 = TS0[0] * T1[0] + TS0[1] * T1[1] + TS0[2] * T1[2];
-    const B cov2 = TS1[0] * T1[0] + TS1[1] * T1[1] + TS1[2] * T1[2] + eps2d;
     const B idet = one / (cov0 * cov2 - cov1 * cov1);
     const B ca = cov2 * idet, cb = -cov1 * idet, cc = cov0 * idet;
 
