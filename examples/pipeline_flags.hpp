@@ -33,7 +33,7 @@ inline const char* kPipelineFlagsUsage =
     "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n"
     "Work a scene does not need (off by default; each reconstruction):\n"
     "  --still-check N [--still-gain DB]   N iterations after the warm-up, bake the field in and train static\n"
-    "                              when it fits the frames less than DB better than its bake (default 0.1)\n"
+    "                              when it fits the frames less than DB better than its bake (default 1.0)\n"
     "  --plateau-window N [--plateau-tolerance X]   stop when the mean loss over N iterations (whole passes)\n"
     "                              improves by less than X (relative; default 0.002) after densification\n"
     "  --max-gaussians N           Gaussian budget of densification\n"

@@ -71,7 +71,7 @@ struct Args {
   double coarse_fraction = 0.5;
   // Levers that skip work (TrainParams; 0 = off).
   int still_check = 0, plateau_window = 0;
-  double still_gain_db = 0.1, plateau_tolerance = 0.002;
+  double still_gain_db = TrainParams{}.still_gain_db, plateau_tolerance = 0.002;
   long max_gaussians = 0;
   double minutes = 0;
   bool deformable = false;

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# A recorded video with motion added: every frame's content is shifted by
+# (-A sin(2 pi n / P), -A cos(2 pi n / P)) pixels, n the frame number from 0,
+# the uncovered border filled white (the recorded videos' background); the
+# cameras (sparse/0) are kept. The scene then moves along a small circle that
+# no static model can explain, which gives the still check a known positive.
+#
+#   scripts/make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES
+#
+# e.g. scripts/make_moving_video.sh ../shared/data/v3d/doll out/moving/doll 4 16
+set -euo pipefail
+src=${1:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
+dst=${2:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
+amp=${3:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
+period=${4:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
+[[ -d $src/images && -d $src/sparse/0 ]] || { echo "make_moving_video: $src has no images/ and sparse/0" >&2; exit 1; }
+[[ $amp =~ ^[0-9]+$ && $amp -ge 1 ]] || { echo "make_moving_video: amplitude must be a whole number of pixels >= 1, got $amp" >&2; exit 1; }
+[[ $period =~ ^[0-9]+$ && $period -ge 2 ]] || { echo "make_moving_video: period must be a whole number of frames >= 2, got $period" >&2; exit 1; }
+command -v ffmpeg > /dev/null || { echo "make_moving_video: ffmpeg not found (apt-get install ffmpeg)" >&2; exit 1; }
+first=$(ls "$src/images" | sort | head -1)
+[[ $first =~ ^([0-9]+)\.jpg$ ]] || { echo "make_moving_video: expected images/NNN.jpg, found $first" >&2; exit 1; }
+digits=${#BASH_REMATCH[1]}
+start=$((10#${BASH_REMATCH[1]}))
+rm -rf "$dst"
+mkdir -p "$dst/images" "$dst/sparse"
+cp -r "$src/sparse/0" "$dst/sparse/0"
+a=$amp
+ffmpeg -loglevel error -start_number "$start" -i "$src/images/%0${digits}d.jpg" \
+  -vf "pad=iw+2*$a:ih+2*$a:$a:$a:white,crop=iw-2*$a:ih-2*$a:$a+$a*sin(2*PI*n/$period):$a+$a*cos(2*PI*n/$period)" \
+  -q:v 2 -start_number "$start" "$dst/images/%0${digits}d.jpg"
+[[ $(ls "$dst/images" | wc -l) == $(ls "$src/images" | wc -l) ]] ||
+  { echo "make_moving_video: wrote $(ls "$dst/images" | wc -l) frames of $(ls "$src/images" | wc -l)" >&2; exit 1; }
+echo "make_moving_video: $dst (shift up to $amp px, period $period frames)"
