@@ -43,6 +43,7 @@ struct GradWanted {
   int sh_first, sh_end;  // coefficients written: [sh_first, sh_end)
 };
 
+// The GCC 12 false positive of project_lanes.hpp (xsimd's AVX-512 kernels).
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
