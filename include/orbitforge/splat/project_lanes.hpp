@@ -64,6 +64,13 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
 template <class B>
 inline B dist_to_int(const B& x) { return simd::abs(x - simd::round_nearest(x)); }
 
+// GCC 12 reports -Wuninitialized inside avx512fintrin.h for xsimd's AVX-512
+// kernels once inlined here (the unmasked intrinsics pass _mm512_undefined_*():
+// a false positive).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#endif
 // The covariance chain shared by the forward and VJP batch paths: the rotation
 // of q / |q|, Sigma = (R diag(s)) (R diag(s))^T, the EWA Jacobian with the x/z,
 // y/z clamp, T = J W and cov2d = T Sigma T^T + eps2d I.
@@ -169,13 +176,6 @@ inline void lanes_sh_raw_color(int k_count, const B* b, const GaussianLanes<type
 // a decision, e.g. an image on tight_extents).
 constexpr int kLaneScalar = 5, kLaneDecision = 6;
 
-// GCC 12 reports -Wuninitialized inside avx512fintrin.h for xsimd's AVX-512
-// kernels once inlined here (the unmasked intrinsics pass _mm512_undefined_*():
-// a false positive).
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
 // Projects Gaussians i0 .. i0 + count - 1 (count <= B::size) into `out`,
 // counting reasons into local[5].
 template <class B, class Scene>
