@@ -77,3 +77,34 @@ TEST_CASE("view matching: bad input names the problem", "[metrics][view_matching
   REQUIRE_THROWS_WITH(thumbnail(Image<float>(4, 4, 1), 8), Catch::Contains("RGB"));
   REQUIRE(match_views(none, one, {3.0}).positions.empty());
 }
+
+TEMPLATE_TEST_CASE("centre crop to an aspect keeps the middle of the wider side", "[metrics][view_matching]", float,
+                   double) {
+  // Pixel (x, y) holds (x, y, x + 10 y) so every crop can be located exactly.
+  Image<TestType> wide(9, 4, 3);
+  for (int y = 0; y < wide.height; ++y)
+    for (int x = 0; x < wide.width; ++x) {
+      wide(x, y, 0) = TestType(x);
+      wide(x, y, 1) = TestType(y);
+      wide(x, y, 2) = TestType(x + 10 * y);
+    }
+  const auto sq = centre_crop_to_aspect(wide, 1.0);
+  REQUIRE(sq.width == 4);
+  REQUIRE(sq.height == 4);
+  for (int y = 0; y < 4; ++y)
+    for (int x = 0; x < 4; ++x) {
+      CHECK(sq(x, y, 0) == TestType(x + 2));  // (9 - 4) / 2 = 2 columns off the left
+      CHECK(sq(x, y, 1) == TestType(y));
+      CHECK(sq(x, y, 2) == TestType(x + 2 + 10 * y));
+    }
+  // A taller target aspect crops rows instead: 9 wide at 9:2 keeps rows 1 and 2.
+  const auto band = centre_crop_to_aspect(wide, 4.5);
+  REQUIRE(band.width == 9);
+  REQUIRE(band.height == 2);
+  CHECK(band(0, 0, 1) == TestType(1));
+  CHECK(band(8, 1, 2) == TestType(8 + 20));
+  // The image's own aspect returns it unchanged.
+  const auto same = centre_crop_to_aspect(wide, 9.0 / 4.0);
+  CHECK(same.data == wide.data);
+  REQUIRE_THROWS_WITH(centre_crop_to_aspect(wide, 0.0), Catch::Contains("aspect must be positive"));
+}

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <set>
 #include <stdexcept>
 
 #include "orbitforge/pipeline/pipeline.hpp"
@@ -391,6 +392,43 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
   CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((dir / "gmed0.ply").string()));
   CHECK(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>() ==
         Approx(r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>()));
+}
+
+// The paper's protocol on a square source: the canonical views are wider than
+// the source frames (same focal), so the oracle's completion frames (recorded,
+// square) and R0's arc renders (wide) differ in shape inside V_hat and G1.
+TEST_CASE("pipeline: canonical views wider than a square source, oracle completion", "[pipeline][protocol]") {
+  const fs::path dir = scratch().root / "wide";
+  PipelineParams p = tiny_params();
+  p.iters_g0 = p.iters_g1 = 60;
+  p.init_points = 400;
+  p.static_proxy_diagnostics = false;
+  p.g1_data = G1Data::paper;  // G1 trains on both shapes
+  const int w = tiny_input().width, h = tiny_input().height;
+  p.canonical_width = w * 7 / 4;
+  p.canonical_height = h;
+  const auto r = run_pipeline(tiny_input_data(), p, dir.string());
+
+  const auto r1 = read_image<float>((dir / "R1" / pipeline_detail::view_file(0)).string());
+  CHECK(r1.width == p.canonical_width);
+  CHECK(r1.height == h);
+  const auto vhat = parse_file(dir / "vhat.json");
+  std::set<std::pair<int, int>> shapes;
+  for (const auto& f : vhat.at("frames")) {
+    const auto img = read_image<float>((dir / f.at("file").get<std::string>()).string());
+    shapes.insert({img.width, img.height});
+  }
+  CHECK(shapes == std::set<std::pair<int, int>>{{w, h}, {p.canonical_width, h}});
+  // The loop seam is scored on the view both endpoint frames share (the square
+  // centre of the wide one); the content trace on the same centre crops.
+  const auto& c = r.at("completion");
+  const double loop = c.at("loop_endpoint_l1").get<double>();
+  CHECK(std::isfinite(loop));
+  CHECK(loop < 60);
+  const auto& trace = c.at("completion_trace");
+  REQUIRE(trace.is_object());
+  CHECK(trace.at("matched_views").size() > 10);
+  CHECK(std::isfinite(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>()));
 }
 
 TEST_CASE("pipeline: external provider writes the request, stops, and resumes with completed frames",

@@ -40,6 +40,26 @@ std::vector<double> thumbnail(const Image<T>& img, int grid) {
   return sum;
 }
 
+// The largest centred crop of `img` with aspect ratio `aspect` (width / height).
+// Two views from one place whose focal lengths (in pixels) are in proportion to
+// their heights, as the canonical views' are to the source frames', show the
+// same field of view once both are cropped to the narrower aspect.
+template <class T>
+Image<T> centre_crop_to_aspect(const Image<T>& img, double aspect) {
+  ensure(aspect > 0 && std::isfinite(aspect), "centre_crop_to_aspect: aspect must be positive, got ", aspect);
+  ensure(img.width >= 1 && img.height >= 1, "centre_crop_to_aspect: empty image");
+  const int w = std::max(1, std::min(img.width, int(std::lround(img.height * aspect))));
+  const int h = std::max(1, std::min(img.height, int(std::lround(img.width / aspect))));
+  if (w == img.width && h == img.height) return img;
+  Image<T> out(w, h, img.channels);
+  const int x0 = (img.width - w) / 2, y0 = (img.height - h) / 2;
+  const std::size_t row = std::size_t(w) * std::size_t(img.channels);
+  for (int y = 0; y < h; ++y)
+    std::copy_n(&img.data[(std::size_t(y0 + y) * img.width + x0) * img.channels], row,
+                &out.data[std::size_t(y) * row]);
+  return out;
+}
+
 struct ViewMatch {
   std::vector<double> positions;   // per frame: the best reference's position
   std::vector<double> distances;   // per frame: its mean absolute thumbnail difference

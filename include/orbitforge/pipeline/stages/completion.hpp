@@ -120,11 +120,17 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
     std::vector<double> ref_positions;
     for (int v : rendered_views(run.fit.views, p.render_stride))
       if (ctx.r0_rendered(v)) ref_positions.push_back(v);
+    // Renders and frames may differ in shape (a square source's recorded frames
+    // against wide canonical renders): both are compared on their shared view.
+    double aspect = double(run.fit.cameras[0].intrinsics.width) / double(run.fit.cameras[0].intrinsics.height);
+    for (const auto& f : res.frames) aspect = std::min(aspect, double(f.image.width) / double(f.image.height));
     std::vector<std::vector<double>> refs(ref_positions.size()), frames(res.frames.size());
-    parallel_for(refs.size(), p.threads,
-                 [&](std::size_t i, int) { refs[i] = thumbnail(ctx.r0(int(ref_positions[i])), kGrid); });
-    parallel_for(frames.size(), p.threads,
-                 [&](std::size_t i, int) { frames[i] = thumbnail(res.frames[i].image, kGrid); });
+    parallel_for(refs.size(), p.threads, [&](std::size_t i, int) {
+      refs[i] = thumbnail(centre_crop_to_aspect(ctx.r0(int(ref_positions[i])), aspect), kGrid);
+    });
+    parallel_for(frames.size(), p.threads, [&](std::size_t i, int) {
+      frames[i] = thumbnail(centre_crop_to_aspect(res.frames[i].image, aspect), kGrid);
+    });
     if (!refs.empty()) {
       const ViewMatch m = match_views(frames, refs, ref_positions);
       TraceParams tp;
@@ -171,7 +177,17 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
   TraceParams tp;
   tp.period = period;
   const TemporalTrace tr = temporal_trace(positions, tp);
-  const double loop_l1 = vhat.size() > 1 ? mae_255(clamp01(vhat.back().image), clamp01(vhat.front().image)) : 0.0;
+  // The loop seam on the view both endpoint frames show (see centre_crop_to_aspect);
+  // null when they still differ in resolution.
+  nlohmann::json loop_l1 = 0.0;
+  if (vhat.size() > 1) {
+    const auto& a = vhat.back().image;
+    const auto& b = vhat.front().image;
+    const double aspect =
+        std::min(double(a.width) / double(a.height), double(b.width) / double(b.height));
+    const Image<Scalar> ca = centre_crop_to_aspect(a, aspect), cb = centre_crop_to_aspect(b, aspect);
+    loop_l1 = ca.same_shape(cb) ? nlohmann::json(mae_255(clamp01(ca), clamp01(cb))) : nlohmann::json(nullptr);
+  }
 
   fs::create_directories(out / "vhat");
   nlohmann::json list = nlohmann::json::array();
