@@ -9,7 +9,11 @@
 // Counters (per frame): contrib_px (contributions per pixel), fwd_ns_contrib and
 // bwd_ns_contrib (rasterizer forward / backward time per contribution, ns),
 // project_ms, sort_ms, bin_ms, raster_ms, and for backward the split between the
-// per-pixel and per-Gaussian stages.
+// per-pixel and per-Gaussian stages. BM_RasterKernels also reports the kernels'
+// time per evaluated pixel-Gaussian pair (fwd_ns_eval, bwd_ns_eval), to set
+// against BM_ExpBlendLoop: the same evaluation (conic power, exp, alpha, colour
+// and transmittance blend) in a plain SIMD loop with every operand in registers
+// or L1, the speed one core sustains without tiles, lists or early stops.
 //
 //   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
 #include <benchmark/benchmark.h>
@@ -174,6 +178,58 @@ void BM_RasterKernels(benchmark::State& state) {
   state.counters["bwd_cpu_ms"] = bwd * k;
   state.counters["fwd_ns_contrib"] = fwd * k * 1e6 / c;
   state.counters["bwd_ns_contrib"] = bwd * k * 1e6 / c;
+  const double e = double(std::max<std::uint64_t>(1, out.stats.pairs_evaluated));
+  state.counters["evaluated_px"] = e / (double(w) * h);
+  state.counters["fwd_ns_eval"] = fwd * k * 1e6 / e;
+  state.counters["bwd_ns_eval"] = bwd * k * 1e6 / e;
+}
+
+// A plain exp-and-blend loop: a 16x16 tile of pixels (in native float batches)
+// against a list of Gaussians (mean, conic in base-2 units, opacity, colour),
+// front to back, with no rect tests, no early termination and no stores but the
+// tile's final colour. Arg: the exponential (0 = xsimd::exp of the natural-log
+// power, 1 = the rasterizer's exp2_nonpositive of the base-2 power).
+void BM_ExpBlendLoop(benchmark::State& state) {
+  using B = simd::native_batch<float>;
+  constexpr int kTile = 16, kGaussians = 512;
+  constexpr int kBatches = kTile * kTile / int(B::size);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  struct G { float mx, my, a, b, c, o, r, g, bl; };
+  std::vector<G> gs(kGaussians);
+  const float to_base = state.range(0) ? float(-0.5 / std::log(2.0)) : -0.5f;
+  for (auto& g : gs) {
+    const float s = 0.02f + 0.05f * u(rng);  // inverse variances: a few-pixel footprints
+    g = {kTile * u(rng), kTile * u(rng), s * to_base, 0.3f * s * (u(rng) - 0.5f) * to_base, s * to_base,
+         0.05f + 0.3f * u(rng), u(rng), u(rng), u(rng)};
+  }
+  alignas(64) float px[kTile * kTile], py[kTile * kTile];
+  for (int i = 0; i < kTile * kTile; ++i) px[i] = float(i % kTile) + 0.5f, py[i] = float(i / kTile) + 0.5f;
+  alignas(64) float out[3 * kTile * kTile];
+  for (auto _ : state) {
+    for (int k = 0; k < kBatches; ++k) {
+      const B x = B::load_aligned(px + k * B::size), y = B::load_aligned(py + k * B::size);
+      B T(1.f), cr(0.f), cg(0.f), cb(0.f);
+      for (const G& g : gs) {
+        const B dx = x - B(g.mx), dy = y - B(g.my);
+        const B power = simd::fma(B(g.a) * dx, dx, simd::fma(B(2.f * g.b) * dx, dy, B(g.c) * dy * dy));
+        const B e = state.range(0) ? simd::exp2_nonpositive(power) : simd::exp(power);
+        const B alpha = simd::min(B(0.99f), B(g.o) * e);
+        const B wgt = alpha * T;
+        cr = simd::fma(wgt, B(g.r), cr);
+        cg = simd::fma(wgt, B(g.g), cg);
+        cb = simd::fma(wgt, B(g.bl), cb);
+        T = T - wgt;
+      }
+      cr.store_aligned(out + k * B::size);
+      cg.store_aligned(out + kTile * kTile + k * B::size);
+      cb.store_aligned(out + 2 * kTile * kTile + k * B::size);
+    }
+    benchmark::DoNotOptimize(out);
+    benchmark::ClobberMemory();
+  }
+  const double evals = double(state.iterations()) * kTile * kTile * kGaussians;
+  state.counters["ns_eval"] = benchmark::Counter(evals * 1e-9, benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
 
 void sizes(benchmark::internal::Benchmark* b, bool with_extents) {
@@ -201,6 +257,7 @@ BENCHMARK(BM_RasterKernels)
     ->Args({896, 512, 300000})
     ->Unit(benchmark::kMillisecond)
     ->MinTime(0.3);
+BENCHMARK(BM_ExpBlendLoop)->ArgName("exp2")->Arg(0)->Arg(1)->MinTime(0.3);
 BENCHMARK(BM_Backward)
     ->ArgNames({"w", "h", "n", "threads"})
     ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, false); })

@@ -16,6 +16,8 @@
 
 #include <unistd.h>
 
+#include "orbitforge/pipeline/protocol.hpp"
+#include "orbitforge/pipeline/run_state.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
 
 using namespace orbitforge;
@@ -93,4 +95,67 @@ TEST_CASE("stage records: names JSON or the run folder cannot hold are refused",
   CHECK_FALSE(check_stage(run.out(), "n", "k", {}).current);
   std::ofstream(run.dir / "stages" / "n.json") << with_path("a.bin");
   CHECK(check_stage(run.out(), "n", "k", {}).current);
+}
+
+// A reconstruction's key covers every training setting that can change it, and
+// none of a disabled feature's: a long run resumed with another learning rate
+// trains again, one resumed after a disabled feature's default moved does not.
+TEST_CASE("stage records: training settings key what changes the result, not what is off", "[pipeline][stage_record]") {
+  const PipelineParams p;
+  const auto key = [&](const TrainParams& t) { return pipeline_detail::train_settings<float>(t, p).dump(); };
+  TrainParams base = paper_train_params(10000);
+  base.deformable = true;
+  const std::string k0 = key(base);
+
+  const std::vector<std::pair<const char*, void (*)(TrainParams&)>> changes = {
+      {"position lr", [](TrainParams& t) { t.position_lr_init *= 2; }},
+      {"scaling lr", [](TrainParams& t) { t.scaling_lr = 5e-3; }},
+      {"adam eps", [](TrainParams& t) { t.adam.eps = 1e-8; }},
+      {"SH interval", [](TrainParams& t) { t.sh_degree_interval = 500; }},
+      {"densify interval", [](TrainParams& t) { t.densify_schedule.densify_interval = 50; }},
+      {"opacity reset", [](TrainParams& t) { t.densify_schedule.opacity_reset_interval = 1000; }},
+      {"gaussian budget", [](TrainParams& t) { t.densify_params.max_gaussians = 30000; }},
+      {"field width", [](TrainParams& t) { t.field.width = 64; }},
+      {"time frequencies", [](TrainParams& t) { t.field.t_frequencies = 6; }},
+      {"head init", [](TrainParams& t) { t.field.head_init_scale = 0.01; }},
+      {"deform lr", [](TrainParams& t) { t.deform_lr_final = 8e-6; }},
+      {"warm-up", [](TrainParams& t) { t.warmup_iterations = 750; }},
+      {"time noise", [](TrainParams& t) { t.time_noise = 0; }},
+      {"still check", [](TrainParams& t) { t.still_check_iterations = 500; }},
+      {"coarse levels", [](TrainParams& t) { t.coarse_levels = 1; }},
+      {"plateau", [](TrainParams& t) { t.plateau_window = 500; }},
+  };
+  for (const auto& c : changes) {
+    INFO(c.first);
+    TrainParams t = base;
+    c.second(t);
+    CHECK(key(t) != k0);
+  }
+
+  const std::vector<std::pair<const char*, void (*)(TrainParams&)>> off = {
+      {"still gain, check off", [](TrainParams& t) { t.still_gain_db = 0.1; }},
+      {"still samples, check off", [](TrainParams& t) { t.still_bake_samples = 8; }},
+      {"coarse fraction, coarse off", [](TrainParams& t) { t.coarse_fraction = 0.75; }},
+      {"plateau tolerance, plateau off", [](TrainParams& t) { t.plateau_tolerance = 0.02; }},
+      {"time noise steps, noise off", [](TrainParams& t) { t.time_noise_steps = 1000; }},
+      {"threads", [](TrainParams& t) { t.threads = 7; }},
+  };
+  TrainParams quiet = base;
+  quiet.time_noise = 0;
+  const std::string kq = key(quiet);
+  for (const auto& c : off) {
+    INFO(c.first);
+    TrainParams t = quiet;
+    c.second(t);
+    CHECK(key(t) == kq);
+  }
+  // A static reconstruction ignores every deformation setting.
+  TrainParams still = base;
+  still.deformable = false;
+  TrainParams still_other = still;
+  still_other.field.width = 64;
+  still_other.deform_lr_init = 1e-3;
+  still_other.still_check_iterations = 500;
+  CHECK(key(still_other) == key(still));
+  CHECK(key(still) != k0);
 }

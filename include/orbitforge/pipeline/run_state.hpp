@@ -35,29 +35,67 @@ inline std::vector<int> rendered_views(int views, int stride) {
   return v;
 }
 
+// Everything in `t` (the TrainParams a stage trains with, as train_params()
+// makes them) that can change the result, for the stage's key and record: every
+// learning rate, schedule and network setting, and the settings of the optional
+// features only when the feature is on, so that a disabled feature's parameter
+// does not invalidate a finished reconstruction. Threads are keyed by the stages.
 template <class Scalar>
-nlohmann::json train_settings(const TrainParams& t, int iters, bool deformable, const PipelineParams& p) {
-  return {{"iterations", iters},
-          {"deformable", deformable},
-          {"scale_offset", scale_offset_name(t.field.scale_offset)},
-          {"normalize_field", t.normalize_field},
-          {"seed", p.seed},
-          {"median_samples", p.median_samples},
-          {"max_sh_degree", t.max_sh_degree},
-          {"densify", t.densify},
-          {"min_densify_interval", p.min_densify_interval},
-          {"lambda_dssim", t.lambda_dssim},
-          {"field_depth", t.field.depth},
-          {"field_width", t.field.width},
-          {"init_points", p.init_points},
-          {"max_gaussians", t.densify_params.max_gaussians},
-          {"coarse_levels", t.coarse_levels},
-          {"coarse_fraction", t.coarse_fraction},
-          {"still_check_iterations", t.still_check_iterations},
-          {"still_gain_db", t.still_gain_db},
-          {"plateau_window", t.plateau_window},
-          {"plateau_tolerance", t.plateau_tolerance},
-          {"scalar_bytes", sizeof(Scalar)}};
+nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
+  const auto& d = t.densify_params;
+  const auto& s = t.densify_schedule;
+  nlohmann::json j = {
+      {"iterations", t.iterations},
+      {"reference_budget", t.reference_budget},
+      {"seed", t.seed},
+      {"background", t.background},
+      {"lr", {{"position", {t.position_lr_init, t.position_lr_final, t.position_lr_steps}},
+              {"feature", t.feature_lr},
+              {"sh_rest_divisor", t.sh_rest_divisor},
+              {"opacity", t.opacity_lr},
+              {"scaling", t.scaling_lr},
+              {"rotation", t.rotation_lr},
+              {"adam", {t.adam.beta1, t.adam.beta2, t.adam.eps}}}},
+      {"max_sh_degree", t.max_sh_degree},
+      {"sh_degree_interval", t.sh_degree_interval},
+      {"lambda_dssim", t.lambda_dssim},
+      {"deformable", t.deformable},
+      {"densify", t.densify},
+      {"median_samples", p.median_samples},
+      {"init_points", p.init_points},
+      {"scalar_bytes", sizeof(Scalar)}};
+  if (t.densify)
+    j["densification"] = {{"grad_threshold", d.grad_threshold},
+                          {"percent_dense", d.percent_dense},
+                          {"min_opacity", d.min_opacity},
+                          {"split", {d.split_count, d.split_scale_divisor}},
+                          {"max_world_scale", d.max_world_scale},
+                          {"max_screen_radius", d.max_screen_radius},
+                          {"reset_opacity", d.reset_opacity},
+                          {"max_gaussians", d.max_gaussians},
+                          {"schedule", {s.densify_from, s.densify_until, s.densify_interval, s.opacity_reset_interval}},
+                          {"min_interval", t.min_densify_interval}};
+  if (t.deformable) {
+    const auto& f = t.field;
+    j["deformation"] = {{"field", {{"depth", f.depth},
+                                   {"width", f.width},
+                                   {"skip_layer", f.skip_layer},
+                                   {"frequencies", {f.x_frequencies, f.t_frequencies}},
+                                   {"head_init_scale", f.head_init_scale},
+                                   {"scale_offset", scale_offset_name(f.scale_offset)},
+                                   {"seed", f.seed}}},
+                        {"normalize_field", t.normalize_field},
+                        {"warmup", {t.warmup_iterations, t.deform_reference_budget}},
+                        {"lr", {t.deform_lr_init, t.deform_lr_final, t.deform_lr_steps}}};
+    if (t.time_noise != 0) j["deformation"]["time_noise"] = {t.time_noise, t.time_noise_steps};
+    if (t.still_check_iterations > 0)
+      j["still_check"] = {{"iterations", t.still_check_iterations},
+                          {"gain_db", t.still_gain_db},
+                          {"bake_samples", t.still_bake_samples}};
+  }
+  if (t.coarse_levels > 0) j["coarse"] = {{"levels", t.coarse_levels}, {"fraction", t.coarse_fraction}};
+  if (t.plateau_window > 0) j["plateau"] = {{"window", t.plateau_window}, {"tolerance", t.plateau_tolerance}};
+  return j;
 }
 
 }  // namespace pipeline_detail

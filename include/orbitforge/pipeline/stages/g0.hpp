@@ -40,7 +40,7 @@ void stage_g0(PipelineRun<Scalar>& run) {
   using namespace pipeline_detail;
   const auto t0 = std::chrono::steady_clock::now();
   const auto& p = run.params;
-  const nlohmann::json settings = {{"train", train_settings<Scalar>(p.train, p.iters_g0, p.deformable, p)},
+  const nlohmann::json settings = {{"train", train_settings<Scalar>(run.train_params(p.iters_g0, p.deformable), p)},
                                    {"render_stride", p.render_stride},
                                    {"threads", p.threads}};
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("orbit"))));

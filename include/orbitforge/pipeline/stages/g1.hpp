@@ -106,7 +106,7 @@ std::uint64_t training_set_signature(const std::vector<TrainFrame<Scalar>>& fram
 template <class Scalar>
 nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string& data, bool deformable) {
   const auto& p = run.params;
-  return {{"train", pipeline_detail::train_settings<Scalar>(p.train, p.iters_g1, deformable, p)},
+  return {{"train", pipeline_detail::train_settings<Scalar>(run.train_params(p.iters_g1, deformable), p)},
           {"from_gmed0", p.g1_from_gmed0},
           {"data", data},
           {"source_repeats", p.g1_source_repeats},
