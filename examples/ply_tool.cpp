@@ -9,6 +9,11 @@
 //   ply_tool dump FILE [FIRST [COUNT]] prints Gaussians as JSON lines with the values
 //                                      as stored (PLY names, f_rest channel-major)
 //   ply_tool random N DEGREE SEED OUT  writes a random scene (for format checks)
+//   ply_tool visible FILE CAMERAS [FIRST LAST]
+//                                      how many Gaussians projection keeps in each
+//                                      camera of a camera file (orbit.json, a list),
+//                                      or cameras FIRST..LAST of it, and how many no
+//                                      camera keeps, as one JSON object
 #include <cmath>
 #include <cstdio>
 #include <iostream>
@@ -20,6 +25,8 @@
 
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/splat_format.hpp"
+#include "orbitforge/pipeline/orbit_file.hpp"
+#include "orbitforge/splat/project.hpp"
 #include "cli.hpp"
 
 using namespace orbitforge;
@@ -114,11 +121,44 @@ int random_scene(std::size_t n, int degree, unsigned seed, const std::string& ou
   return 0;
 }
 
+// The work a "skip Gaussians outside every training frustum" lever could save:
+// those no camera keeps after projection's culling.
+int visible(const std::string& path, const std::string& cameras_path, std::size_t first, std::size_t last) {
+  const auto s = load(path);
+  const auto all = read_cameras_json<float>(cameras_path);
+  ensure(!all.empty(), "ply_tool visible: ", cameras_path, " lists no camera");
+  last = std::min(last, all.size() - 1);
+  ensure(first <= last && last < all.size(), "ply_tool visible: cameras ", first, "..", last, " of ", all.size());
+  std::vector<std::uint32_t> kept_by(s.size(), 0);
+  ProjectedSplats<float> ps;
+  double mean = 0, lowest = 1;
+  for (std::size_t c = first; c <= last; ++c) {
+    project_scene(SceneView<float>(s), all[c], ProjectionParams{}, ps, nullptr, 0);
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < ps.size(); ++i)
+      if (ps.radius[i] > 0) ++kept_by[i], ++kept;
+    const double f = s.size() ? double(kept) / double(s.size()) : 0.0;
+    mean += f / double(last - first + 1);
+    lowest = std::min(lowest, f);
+  }
+  std::size_t none = 0;
+  for (auto k : kept_by) none += k == 0 ? 1 : 0;
+  nlohmann::json j = {{"file", path},
+                      {"gaussians", s.size()},
+                      {"cameras", last - first + 1},
+                      {"kept_per_camera", {{"mean", mean}, {"min", lowest}}},
+                      {"kept_by_no_camera", none},
+                      {"kept_by_no_camera_fraction", s.size() ? double(none) / double(s.size()) : 0.0}};
+  std::cout << j.dump() << "\n";
+  return 0;
+}
+
 int usage() {
   std::cerr << "usage: ply_tool info FILE\n"
                "       ply_tool convert IN OUT        (.ply <-> .splat)\n"
                "       ply_tool dump FILE [FIRST [COUNT]]\n"
-               "       ply_tool random N DEGREE SEED OUT\n";
+               "       ply_tool random N DEGREE SEED OUT\n"
+               "       ply_tool visible FILE CAMERAS.json [FIRST LAST]\n";
   return 2;
 }
 
@@ -140,6 +180,9 @@ int main(int argc, char** argv) {
     }
     if (cmd == "random" && argc == 6)
       return random_scene(std::stoull(argv[2]), std::stoi(argv[3]), unsigned(std::stoul(argv[4])), argv[5]);
+    if (cmd == "visible" && (argc == 4 || argc == 6))
+      return visible(argv[2], argv[3], argc == 6 ? std::stoull(argv[4]) : 0,
+                     argc == 6 ? std::stoull(argv[5]) : std::numeric_limits<std::size_t>::max());
     return usage();
   } catch (const std::exception& e) {
     std::cerr << "ply_tool: " << cli::describe(e) << "\n";
