@@ -397,7 +397,7 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
 // The paper's protocol on a square source: the canonical views are wider than
 // the source frames (same focal), so the oracle's completion frames (recorded,
 // square) and R0's arc renders (wide) differ in shape inside V_hat and G1.
-TEST_CASE("pipeline: canonical views wider than a square source, oracle completion", "[pipeline][protocol]") {
+TEST_CASE("pipeline: canonical views wider than a square source (oracle V_hat and G1, external anchors)", "[pipeline][protocol]") {
   const fs::path dir = scratch().root / "wide";
   PipelineParams p = tiny_params();
   p.iters_g0 = p.iters_g1 = 60;
@@ -429,6 +429,23 @@ TEST_CASE("pipeline: canonical views wider than a square source, oracle completi
   REQUIRE(trace.is_object());
   CHECK(trace.at("matched_views").size() > 10);
   CHECK(std::isfinite(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>()));
+
+  // The external request: square anchors in a wide clip say which box they show.
+  p.completion = "external";
+  REQUIRE_THROWS_AS(run_pipeline(tiny_input_data(), p, dir.string()), PipelineStopped);
+  const auto m = parse_file(dir / "completion_request" / "manifest.json");
+  CHECK(m.at("width").get<int>() == p.canonical_width);
+  REQUIRE(m.at("anchors").size() >= 2);
+  for (const auto& a : m.at("anchors")) {
+    CHECK(a.at("width").get<int>() == w);
+    CHECK(a.at("height").get<int>() == h);
+    const auto box = a.at("covers").get<std::vector<double>>();
+    REQUIRE(box.size() == 4);
+    CHECK(box[0] == Approx((p.canonical_width - w) / 2.0));
+    CHECK(box[2] - box[0] == Approx(w));
+    CHECK(box[1] == 0);
+    CHECK(box[3] == h);
+  }
 }
 
 TEST_CASE("pipeline: external provider writes the request, stops, and resumes with completed frames",

@@ -192,15 +192,27 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
       cond.push_back({{"synthetic", j}, {"canonical", v}, {"file", file}});
     }
     const auto& in = *ctx.input;
+    const int width = ctx.fit->intrinsics.width, height = ctx.fit->intrinsics.height;  // the canonical views
     for (const auto& a : L.anchors) {
       // fit.source indexes the source list; in.source maps it to the input's frames.
       const int frame = in.source[std::size_t(ctx.fit->source[std::size_t(a.source_index)].input_index)];
       if (in.is_withheld(frame)) continue;  // withheld frames reach no model
       const std::string file = "anchors/" + frame_name(a.synthetic);
-      write_png((dir / file).string(), in.images[std::size_t(frame)]);
-      anchors.push_back({{"synthetic", a.synthetic}, {"canonical", a.canonical}, {"name", a.name}, {"file", file}});
+      const auto& img = in.images[std::size_t(frame)];
+      write_png((dir / file).string(), img);
+      // The canonical focal length is the source's scaled by the height ratio, so
+      // a source frame of another aspect shows the centre of the view at that
+      // scale: the box it covers, in the canonical view's pixels.
+      const double scale = double(height) / double(img.height);
+      const double covered = double(img.width) * scale, x0 = 0.5 * (double(width) - covered);
+      anchors.push_back({{"synthetic", a.synthetic},
+                         {"canonical", a.canonical},
+                         {"name", a.name},
+                         {"file", file},
+                         {"width", img.width},
+                         {"height", img.height},
+                         {"covers", {x0, 0.0, x0 + covered, double(height)}}});
     }
-    const int width = ctx.fit->intrinsics.width, height = ctx.fit->intrinsics.height;  // the canonical views
     nlohmann::json m = {{"frames", L.frames},
                         {"width", width},
                         {"height", height},
@@ -217,8 +229,11 @@ class ExternalCompletion : public CompletionProvider<Scalar> {
                          "Generate a clip of `frames` frames (8m+1). Frame j shows canonical view "
                          "synthetic_to_canonical[j]. Condition on the conditioning frames and the anchors at their "
                          "synthetic indices (for LTX-Video: conditioning media paths = the files, conditioning start "
-                         "frames = the synthetic indices). Write every frame as completed/NNNN.png "
-                         "(NNNN = synthetic index, 0-based) at width x height, then run the pipeline again."}};
+                         "frames = the synthetic indices). An anchor of another size than width x height shows the "
+                         "box `covers` of its view (x0, y0, x1, y1 in the view's pixels; a square source frame is "
+                         "the centre of a wide view): place it there, do not stretch it. Write every frame as "
+                         "completed/NNNN.png (NNNN = synthetic index, 0-based) at width x height, then run the "
+                         "pipeline again."}};
     write_file_atomic((dir / "manifest.json").string(), m.dump(1) + "\n");
 
     CompletionResult<Scalar> r;
