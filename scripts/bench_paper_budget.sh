@@ -14,15 +14,17 @@
 # at the source frames' own, the canonical views at 896x512). BENCH_RESUME=1
 # keeps an existing run directory, so that a run longer than one sitting (the
 # paper's protocol takes hours) goes on from its last verified checkpoint; its
-# stage times then cover only what ran after the resume.
+# stage times then cover only what ran after the resume. BENCH_PROGRAM names
+# another full_pipeline binary: keep a copy for a run that spans code changes,
+# since a stage whose settings record changed with the code trains again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out_root=${1:?usage: bench_paper_budget.sh OUT_ROOT "VIDEO ..." [flags]}
 videos=${2:?usage: bench_paper_budget.sh OUT_ROOT "VIDEO ..." [flags]}
 shift 2
 data=${ORBITFORGE_DATA:-../shared/data/v3d}
-program=build/examples/full_pipeline
-[[ -x $program ]] || { echo "bench_paper_budget: $program not built (cmake --build build)" >&2; exit 1; }
+program=${BENCH_PROGRAM:-build/examples/full_pipeline}
+[[ -x $program ]] || { echo "bench_paper_budget: $program not built (cmake --build build) or not executable" >&2; exit 1; }
 mkdir -p "$out_root"
 echo "| video | method wall s | orbit | G0 | static diagnostics | completion | G1 | report | R0 sup held-out dB | R1 sup / gap held-out dB |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
