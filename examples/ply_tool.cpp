@@ -127,7 +127,7 @@ int visible(const std::string& path, const std::string& cameras_path, std::size_
   const auto s = load(path);
   const auto all = read_cameras_json<float>(cameras_path);
   ensure(!all.empty(), "ply_tool visible: ", cameras_path, " lists no camera");
-  last = std::min(last, all.size() - 1);
+  if (last == std::numeric_limits<std::size_t>::max()) last = all.size() - 1;  // no range given: every camera
   ensure(first <= last && last < all.size(), "ply_tool visible: cameras ", first, "..", last, " of ", all.size());
   std::vector<std::uint32_t> kept_by(s.size(), 0);
   ProjectedSplats<float> ps;

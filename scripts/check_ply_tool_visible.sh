@@ -32,3 +32,7 @@ if "$tool" visible "$work/scene.ply" "$work/cameras.json" 1 0 2> "$work/err"; th
   echo "ply_tool visible: a reversed camera range was accepted" >&2; exit 1
 fi
 grep -q "cameras 1..0 of 2" "$work/err" || { cat "$work/err" >&2; exit 1; }
+if "$tool" visible "$work/scene.ply" "$work/cameras.json" 0 5 2> "$work/err"; then
+  echo "ply_tool visible: a range past the last camera was accepted" >&2; exit 1
+fi
+grep -q "cameras 0..5 of 2" "$work/err" || { cat "$work/err" >&2; exit 1; }
