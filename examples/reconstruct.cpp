@@ -50,9 +50,12 @@ const char* kUsage =
     "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
     "                   [--coarse-levels L [--coarse-fraction F]] [--max-gaussians N]\n"
     "                   [--still-check N [--still-gain DB]] [--plateau-window N [--plateau-tolerance X]]\n"
-    "                   --out DIR\n"
+    "                   [--scaling-lr X] [--deform-lr-final X] [--time-noise S] --out DIR\n"
     "  --protocol paper: the DeformableGS backend's schedule, learning rates and 8 x 256 network, unscaled,\n"
-    "                    10,000 iterations, deformable, frames at their own size (flags given override)\n";
+    "                    10,000 iterations, deformable, frames at their own size (flags given override)\n"
+    "  --scaling-lr, --deform-lr-final, --time-noise: one learning rate or the annealed noise on the\n"
+    "                    time code (the backend's 0.1 for real scenes; 0 = off), to measure one departure\n"
+    "                    from the paper at a time\n";
 
 using cli::UsageError;
 
@@ -73,6 +76,9 @@ struct Args {
   int still_check = 0, plateau_window = 0;
   double still_gain_db = TrainParams{}.still_gain_db, plateau_tolerance = 0.002;
   long max_gaussians = 0;
+  // Single settings, for measuring a departure from the paper one at a time
+  // (negative = the protocol's value).
+  double scaling_lr = -1, deform_lr_final = -1, time_noise = -1;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
@@ -98,6 +104,12 @@ long to_long(const std::string& flag, const std::string& v, long lo) {
 }
 
 double to_double(const std::string& flag, const std::string& v) { return cli::parse_double("reconstruct", flag, v); }
+
+double to_nonnegative(const std::string& flag, const std::string& v) {
+  const double x = to_double(flag, v);
+  if (x < 0) throw UsageError("reconstruct: " + flag + " must not be negative, got '" + v + "'");
+  return x;
+}
 
 Args parse(int argc, char** argv) {
   Args a;
@@ -134,6 +146,9 @@ Args parse(int argc, char** argv) {
     else if (f == "--plateau-window") a.plateau_window = int(to_long(f, value(), 0));
     else if (f == "--plateau-tolerance") a.plateau_tolerance = to_double(f, value());
     else if (f == "--max-gaussians") a.max_gaussians = to_long(f, value(), 0);
+    else if (f == "--scaling-lr") a.scaling_lr = to_nonnegative(f, value());
+    else if (f == "--deform-lr-final") a.deform_lr_final = to_nonnegative(f, value());
+    else if (f == "--time-noise") a.time_noise = to_nonnegative(f, value());
     else if (f == "--minutes") {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
@@ -252,6 +267,9 @@ int run(const Args& a) {
   p.plateau_window = a.plateau_window;
   p.plateau_tolerance = a.plateau_tolerance;
   p.densify_params.max_gaussians = std::size_t(a.max_gaussians);
+  if (a.scaling_lr >= 0) p.scaling_lr = a.scaling_lr;
+  if (a.deform_lr_final >= 0) p.deform_lr_final = a.deform_lr_final;
+  if (a.time_noise >= 0) p.time_noise = a.time_noise;
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;
