@@ -23,6 +23,7 @@
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 
 #include "orbitforge/deform/median_baker.hpp"
@@ -77,8 +78,8 @@ struct Args {
   double still_gain_db = TrainParams{}.still_gain_db, plateau_tolerance = 0.002;
   long max_gaussians = 0;
   // Single settings, for measuring a departure from the paper one at a time
-  // (negative = the protocol's value).
-  double scaling_lr = -1, deform_lr_final = -1, time_noise = -1;
+  // (unset: the protocol's value).
+  std::optional<double> scaling_lr, deform_lr_final, time_noise;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
@@ -267,9 +268,9 @@ int run(const Args& a) {
   p.plateau_window = a.plateau_window;
   p.plateau_tolerance = a.plateau_tolerance;
   p.densify_params.max_gaussians = std::size_t(a.max_gaussians);
-  if (a.scaling_lr >= 0) p.scaling_lr = a.scaling_lr;
-  if (a.deform_lr_final >= 0) p.deform_lr_final = a.deform_lr_final;
-  if (a.time_noise >= 0) p.time_noise = a.time_noise;
+  p.scaling_lr = a.scaling_lr.value_or(p.scaling_lr);
+  p.deform_lr_final = a.deform_lr_final.value_or(p.deform_lr_final);
+  p.time_noise = a.time_noise.value_or(p.time_noise);
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;
