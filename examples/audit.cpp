@@ -2,12 +2,16 @@
 // one table of their report.json figures (coverage, orbit diagnostics, quality,
 // completion, stage times) with median and P90 rows.
 //
-//   audit --inputs DIR... [--protocol measured|paper] [full_pipeline's flags] [--shard i/n]
-//         [--report-only] --out DIR
+//   audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [--protocol measured|paper]
+//         [full_pipeline's flags] [--shard i/n] [--report-only] --out DIR
 //
 // Each input DIR (a COLMAP folder, as full_pipeline --colmap takes) runs into
 // OUT/<basename of DIR>/ exactly as full_pipeline would, and resumes like it:
-// finished stages are skipped. An input that fails is recorded with its message
+// finished stages are skipped. --cameras estimated is the user's path: COLMAP
+// estimates the cameras from DIR/images' source frames alone (full_pipeline
+// --images), and DIR's own model only scores the run (full_pipeline
+// --reference). --cameras recorded (the default) uses DIR's model for
+// everything: a lab figure when that model was estimated with every frame. An input that fails is recorded with its message
 // and the audit goes on. --report-only runs nothing and reads OUT/<name>/report.json.
 // --shard i/n takes every n-th input (sorted by path) so n machines can share the
 // work; its tables are audit-<i>-of-<n>.{json,md,csv}, and a later --report-only
@@ -34,8 +38,11 @@ namespace fs = std::filesystem;
 namespace {
 
 const std::string kUsage =
-    std::string("usage: audit --inputs DIR... [flags] [--shard i/n] [--report-only] --out DIR\n"
-                "  (audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound)\n") +
+    std::string("usage: audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [flags]\n"
+                "             [--shard i/n] [--report-only] --out DIR\n"
+                "  (audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound)\n"
+                "  --cameras recorded          each DIR's own model (default; a lab figure when it saw every frame)\n"
+                "  --cameras estimated         COLMAP on DIR/images' source frames alone; DIR's model scores the run\n") +
     cli::kPipelineFlagsUsage;
 
 // The folder name an input's outputs go to: the last component of its path.
@@ -56,7 +63,8 @@ int main(int argc, char** argv) {
     flags.holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
     flags.params.compare_g1_paper = flags.params.oracle_bound = true;
     cli::begin_pipeline_flags("audit", argc, argv, flags);
-    bool report_only = false;
+    bool report_only = false, completion_set = false;
+    std::string cameras = "recorded";
     cli::ArgWalker a("audit", argc, argv);
     bool more = a.next();
     while (more) {
@@ -70,8 +78,14 @@ int main(int argc, char** argv) {
         if (!any) throw cli::UsageError("audit: --inputs needs at least one folder\n" + kUsage);
         continue;
       }
+      if (f == "--completion") completion_set = true;
       if (cli::parse_pipeline_flag("audit", a, flags)) {
       } else if (f == "--shard") shard_text = a.value();
+      else if (f == "--cameras") {
+        cameras = a.value();
+        if (cameras != "recorded" && cameras != "estimated")
+          throw cli::UsageError("audit: --cameras must be recorded or estimated, got '" + cameras + "'");
+      }
       else if (f == "--report-only") report_only = true;
       else if (f == "--out") out = a.value();
       else if (f == "-h" || f == "--help") {
@@ -85,6 +99,9 @@ int main(int argc, char** argv) {
     const PipelineParams& p = flags.params;
     if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required\n" + kUsage);
     if (out.empty()) throw cli::UsageError("audit: --out DIR is required\n" + kUsage);
+    // The oracle reads frames the method would not have: an audit says which completion it measured.
+    if (!report_only && !completion_set)
+      throw cli::UsageError("audit: name the completion (--completion oracle|perturbed|external|none)\n" + kUsage);
     AuditShard shard;
     if (!shard_text.empty()) {
       try {
@@ -115,9 +132,19 @@ int main(int argc, char** argv) {
         AuditRow failed;
         failed.name = name;
         try {
-          // The same loading and settings as full_pipeline --colmap.
-          const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, flags);
-          run_pipeline(input, p, dest);
+          // The same loading and settings as full_pipeline --colmap, or --images DIR/images --reference DIR.
+          if (cameras == "estimated") {
+            CameraStageParams cp = cli::camera_stage_params(flags);
+            cp.images = (fs::path(dir) / "images").string();
+            std::string key;
+            const PipelineInput<S> input = cli::load_estimated_input<S>("audit", dest, cp, flags, dir, &key);
+            PipelineRun<S> run;
+            run.keys["cameras"] = key;
+            run_pipeline(input, p, dest, nullptr, &run);
+          } else {
+            const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, flags);
+            run_pipeline(input, p, dest);
+          }
         } catch (const PipelineStopped& e) {
           failed.error = e.what();
           failed.status = "stopped";
@@ -146,6 +173,7 @@ int main(int argc, char** argv) {
       const auto size = cli::working_size(flags);
       settings["protocol"] = protocol_name(flags.protocol);
       settings["frames"] = flags.frames;
+      settings["cameras"] = cameras;
       settings["completion"] = p.completion;
       settings["width"] = size[0];  // 0: the frames' own
       settings["height"] = size[1];

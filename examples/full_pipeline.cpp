@@ -51,13 +51,16 @@ const std::string kUsage = std::string(
     "                              size the estimator saw (default: the frames')\n"
     "  --fps R                     --video: resample to R frames per second (default: every frame)\n"
     "  --camera-model SIMPLE_PINHOLE|PINHOLE   COLMAP's one camera (default SIMPLE_PINHOLE)\n"
-    "  With --video or --images alone only the source frames get cameras: --completion defaults to\n"
-    "  external (oracle and perturbed need recorded cameras for the gap frames).\n"
+    "  --reference DIR             with --video / --images: a COLMAP folder of the same video estimated\n"
+    "                              from every frame, used only to score the run (and by the oracle)\n"
+    "  With --video or --images alone only the source frames get cameras. A recorded input runs\n"
+    "  with --completion external unless one is named (oracle and perturbed read the gap frames).\n"
     "  --prompt TEXT               the scene's description for the completion request\n") +
                            cli::kPipelineFlagsUsage;
 
 struct Inputs {
   std::string colmap, video, images, transforms, npy_ext, npy_int, npy_size, camera_model = "SIMPLE_PINHOLE";
+  std::string reference;  // a COLMAP folder of every frame, for scoring only
   double fps = 0;
   bool camera_model_set = false;
   bool npy() const { return !npy_ext.empty() || !npy_int.empty(); }
@@ -81,15 +84,19 @@ void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames
   usage(in.npy_size.empty() || npy, "--npy-size goes with --npy-extrinsics/--npy-intrinsics");
   usage(in.fps == 0 || !in.video.empty(), "--fps goes with --video");
   usage(!in.camera_model_set || in.estimate_cameras(), "--camera-model goes with --video or --images alone (COLMAP)");
+  usage(in.reference.empty() || in.estimate_cameras(),
+        "--reference goes with --video or --images alone (cameras estimated from the source frames)");
+  usage((flags.focal_px == 0 && flags.fov_deg == 0 && !flags.focal_search) || in.estimate_cameras(),
+        "--focal, --fov and --focal-search go with --video or --images alone (COLMAP)");
   usage(in.camera_model == "SIMPLE_PINHOLE" || in.camera_model == "PINHOLE",
         "--camera-model must be SIMPLE_PINHOLE or PINHOLE, got '" + in.camera_model + "'");
   usage(!frames_set || in.recorded(), "--frames needs a recorded input (--video, --images, --colmap, ...)");
   const std::string& c = flags.params.completion;
-  usage(!completion_set || !in.estimate_cameras() || (c != "oracle" && c != "perturbed"),
+  usage(!completion_set || !in.estimate_cameras() || !in.reference.empty() || (c != "oracle" && c != "perturbed"),
         "--completion " + c + " needs recorded cameras for the gap frames, and with " +
             (in.video.empty() ? "--images" : "--video") +
             " only the source frames get cameras (COLMAP sees nothing else); use --completion external (the "
-            "default for this input) or none");
+            "default for this input) or none, or give --reference DIR (a model of every frame, for scoring)");
 }
 
 }  // namespace
@@ -114,6 +121,7 @@ int main(int argc, char** argv) {
       else if (f == "--npy-extrinsics") in.npy_ext = a.value();
       else if (f == "--npy-intrinsics") in.npy_int = a.value();
       else if (f == "--npy-size") in.npy_size = a.value();
+      else if (f == "--reference") in.reference = a.value();
       else if (f == "--fps") {
         in.fps = cli::parse_double("full_pipeline", f, a.value());
         if (in.fps <= 0) throw cli::UsageError("full_pipeline: --fps must be positive");
@@ -131,8 +139,9 @@ int main(int argc, char** argv) {
     }
     cli::end_pipeline_flags(flags);
     check_inputs(in, flags, frames_set, completion_set);
-    // Gap frames of an estimated input have no cameras: only an external completion (or none) fits.
-    if (in.estimate_cameras() && !completion_set) flags.params.completion = "external";
+    // A recorded input is a real run unless a completion is named: the oracle
+    // and the perturbed provider read frames the method would not have.
+    if (in.recorded() && !completion_set) flags.params.completion = "external";
     if (in.recorded() && out.empty()) throw cli::UsageError("full_pipeline: --out DIR is required with a recorded input");
   } catch (const cli::UsageError& e) {
     std::cerr << e.what() << "\n" << kUsage;
@@ -143,14 +152,12 @@ int main(int argc, char** argv) {
   }
 
   PipelineParams& p = flags.params;
-  CameraStageParams cp;
+  CameraStageParams cp = cli::camera_stage_params(flags);
   if (in.estimate_cameras()) {
     cp.video = in.video;
     cp.images = in.images;
-    cp.frames = flags.frames;
     cp.fps = in.fps;
     cp.camera_model = in.camera_model;
-    cp.threads = p.threads;
     // Before any work: the programs the cameras stage runs.
     for (const auto& [program, package] : camera_stage_programs(cp))
       if (find_program(program).empty()) {
@@ -184,28 +191,9 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
                    bg.reason.c_str());
     } else if (in.estimate_cameras()) {
-      if (p.progress) std::fprintf(stderr, "== stage cameras\n");
-      cp.log = [&](const std::string& line) {
-        if (p.progress) std::fprintf(stderr, "%s\n", line.c_str());
-      };
-      const CameraStageResult cr = stage_cameras(out, cp);
-      if (cr.skipped && p.progress) std::fprintf(stderr, "   cameras: outputs verified, skipped\n");
-      run.keys["cameras"] = cr.key;  // the report counts its time
-      auto wh = size;
-      const bool native = wh[0] == 0 && wh[1] == 0;  // the paper protocol: the frames' own size
-      if (!native && flags.width == 0 && flags.height == 0) {
-        // No size given: 512 on the longer side, keeping the frames' aspect (a video is rarely square).
-        const auto model = read_colmap_model(cr.dataset);
-        const auto& cam = model.cameras.begin()->second;
-        const double aspect = double(cam.width) / double(cam.height);
-        wh = aspect >= 1 ? std::array<int, 2>{512, std::max(8, int(std::lround(512 / aspect)))}
-                         : std::array<int, 2>{std::max(8, int(std::lround(512 * aspect))), 512};
-      }
-      input = load_colmap_input<S>(cr.dataset, flags.frames, wh[0], wh[1]);
-      input.description = (in.video.empty() ? "images " + in.images : "video " + in.video) + " frames " +
-                          flags.frames + " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) +
-                          " of " + std::to_string(cr.source_names.size()) + " source frames)";
-      cli::finish_recorded_input("full_pipeline", input, flags);
+      std::string key;
+      input = cli::load_estimated_input<S>("full_pipeline", out, cp, flags, in.reference, &key);
+      run.keys["cameras"] = key;  // the report counts its time
     } else if (!in.colmap.empty()) {
       input = cli::load_recorded_input<S>("full_pipeline", in.colmap, flags);
     } else {

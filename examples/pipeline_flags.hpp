@@ -15,6 +15,8 @@
 #include "orbitforge/pipeline/input.hpp"
 #include "orbitforge/pipeline/params.hpp"
 #include "orbitforge/pipeline/protocol.hpp"
+#include "orbitforge/pipeline/reference.hpp"
+#include "orbitforge/pipeline/stages/cameras.hpp"
 
 namespace orbitforge::cli {
 
@@ -38,7 +40,12 @@ inline const char* kPipelineFlagsUsage =
     "                              improves by less than X (relative; default 0.002) after densification\n"
     "  --max-gaussians N           Gaussian budget of densification\n"
     "  --coarse-levels L [--coarse-fraction F]   the first F of training (default 0.5) on frames\n"
-    "                              downsampled by up to 2^L\n";
+    "                              downsampled by up to 2^L\n"
+    "Cameras estimated from the source frames (--video, --images; audit --cameras estimated):\n"
+    "  --focal PX | --fov DEG      the video model's lens (pixels of the frames' own size, or the\n"
+    "                              horizontal field of view), held fixed while mapping\n"
+    "  --focal-search              also map at 0.8, 0.9, 1.1 and 1.25 times the mapper's own focal\n"
+    "                              estimate and keep the cameras that fit an orbit best (default: keep it)\n";
 
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
@@ -48,6 +55,10 @@ struct PipelineFlags {
   int holdout_every = 0;
   bool iters_g1_set = false;
   std::optional<std::array<double, 3>> background;
+  // Cameras estimated from the source frames (COLMAP): the lens when known, and
+  // whether to search the focal length otherwise.
+  double focal_px = 0, fov_deg = 0;
+  bool focal_search = false;
 };
 
 // The --protocol value anywhere on the command line (measured when absent).
@@ -129,6 +140,13 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--max-gaussians") p.train.densify_params.max_gaussians = std::size_t(integer(0));
   else if (flag == "--coarse-levels") p.train.coarse_levels = integer(0);
   else if (flag == "--coarse-fraction") p.train.coarse_fraction = parse_double(program, flag, a.value());
+  else if (flag == "--focal") {
+    f.focal_px = parse_double(program, flag, a.value());
+    if (!(f.focal_px > 0)) throw UsageError(program + ": --focal must be a positive number of pixels");
+  } else if (flag == "--fov") {
+    f.fov_deg = parse_double(program, flag, a.value());
+    if (!(f.fov_deg > 0 && f.fov_deg < 180)) throw UsageError(program + ": --fov must lie in (0, 180) degrees");
+  } else if (flag == "--focal-search") f.focal_search = true;
   else return false;
   return true;
 }
@@ -136,6 +154,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
 // After parsing: values that follow from others.
 inline void end_pipeline_flags(PipelineFlags& f) {
   if (!f.iters_g1_set) f.params.iters_g1 = f.params.iters_g0;
+  if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError("give --focal or --fov, not both");
 }
 
 // The working size a recorded input is loaded at: the flags', else the frames'
@@ -165,6 +184,64 @@ PipelineInput<Scalar> load_recorded_input(const std::string& program, const std:
   const auto size = working_size(f);
   PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size[0], size[1]);
   finish_recorded_input(program, input, f);
+  return input;
+}
+
+// The cameras stage's settings from the flags (the input itself is the caller's).
+inline CameraStageParams camera_stage_params(const PipelineFlags& f) {
+  CameraStageParams cp;
+  cp.frames = f.frames;
+  cp.threads = f.params.threads;
+  cp.focal_px = f.focal_px;
+  cp.fov_deg = f.fov_deg;
+  if (f.focal_search) cp.focal_factors = {0.8, 0.9, 1.1, 1.25};
+  return cp;
+}
+
+// A video or a folder of frames whose cameras COLMAP estimates from the source
+// frames alone (stages/cameras.hpp), as a user gets them. With `reference` (a
+// COLMAP folder of the same video estimated from every frame) the run is scored
+// against it (pipeline/reference.hpp); the method never reads it.
+template <class Scalar>
+PipelineInput<Scalar> load_estimated_input(const std::string& program, const std::string& out,
+                                           const CameraStageParams& cp, const PipelineFlags& f,
+                                           const std::string& reference, std::string* cameras_key) {
+  if (f.params.progress) std::fprintf(stderr, "== stage cameras\n");
+  CameraStageParams p = cp;
+  const bool progress = f.params.progress;
+  p.log = [progress](const std::string& line) {
+    if (progress) std::fprintf(stderr, "%s\n", line.c_str());
+  };
+  const CameraStageResult cr = stage_cameras(out, p);
+  if (cr.skipped && progress) std::fprintf(stderr, "   cameras: outputs verified, skipped\n");
+  if (cameras_key) *cameras_key = cr.key;
+  auto wh = working_size(f);
+  const bool native = wh[0] == 0 && wh[1] == 0;  // the paper protocol: the frames' own size
+  if (!native && f.width == 0 && f.height == 0) {
+    // No size given: 512 on the longer side, keeping the frames' aspect (a video is rarely square).
+    const auto model = read_colmap_model(cr.dataset);
+    const auto& cam = model.cameras.begin()->second;
+    const double aspect = double(cam.width) / double(cam.height);
+    wh = aspect >= 1 ? std::array<int, 2>{512, std::max(8, int(std::lround(512 / aspect)))}
+                     : std::array<int, 2>{std::max(8, int(std::lround(512 * aspect))), 512};
+  }
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(cr.dataset, f.frames, wh[0], wh[1]);
+  input.description = (p.video.empty() ? "images " + p.images : "video " + p.video) + " frames " + f.frames +
+                      " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) + " of " +
+                      std::to_string(cr.source_names.size()) + " source frames)";
+  input.camera_path = "estimated from the source frames only";
+  finish_recorded_input(program, input, f);
+  if (!reference.empty()) {
+    const PipelineInput<Scalar> ref = load_colmap_input<Scalar>(reference, f.frames, input.width, input.height);
+    const CameraAlignment a = attach_reference(input, ref, reference);
+    input.camera_path += "; scored against a reference model of every frame";
+    if (progress)
+      std::fprintf(stderr,
+                   "%s: reference %s aligned on %d source frames: centre residual %.4f of the spread, rotation "
+                   "residual mean %.2f max %.2f deg\n",
+                   program.c_str(), reference.c_str(), a.cameras, a.centre_rms_relative, a.rotation_mean_deg,
+                   a.rotation_max_deg);
+  }
   return input;
 }
 

@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -31,6 +32,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/hash.hpp"
 #include "orbitforge/core/image.hpp"
+#include "orbitforge/geometry/camera_alignment.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
@@ -40,6 +42,15 @@
 #include "orbitforge/train/background.hpp"
 
 namespace orbitforge {
+
+// A reference model of the whole recorded orbit, aligned to the input's cameras
+// (pipeline/reference.hpp); scoring reads it, the method never does.
+template <class Scalar>
+struct ReferenceInfo {
+  std::string description;
+  CameraAlignment alignment;                       // reference -> the input's frame
+  std::map<int, Camera<Scalar>> source_cameras;   // aligned reference cameras of the source frames
+};
 
 struct SkippedFrame {
   int frame = 0;        // index into PipelineInput::cameras
@@ -64,6 +75,17 @@ struct PipelineInput {
   std::string description;                   // where it came from (for the report)
   std::array<double, 3> background{{0, 0, 0}};
   std::string background_reason = "default";
+  // Where the cameras came from, for the report: a figure measured on cameras
+  // estimated with frames outside the source is a lab figure.
+  std::string camera_path = "recorded";
+  std::optional<ReferenceInfo<Scalar>> reference;
+  std::map<int, Camera<Scalar>> scoring_cameras;  // frames scored at another camera than their own
+
+  // The camera a frame is scored at.
+  const Camera<Scalar>& scoring_camera(int frame) const {
+    const auto it = scoring_cameras.find(frame);
+    return it != scoring_cameras.end() ? it->second : cameras[std::size_t(frame)].camera;
+  }
 
   bool is_withheld(int frame) const { return std::find(withheld.begin(), withheld.end(), frame) != withheld.end(); }
 
@@ -175,6 +197,12 @@ std::uint64_t input_hash(const PipelineInput<Scalar>& in) {
   for (int s : in.source) os << ' ' << s;
   os << " withheld";
   for (int s : in.withheld) os << ' ' << s;
+  os << " scored at";
+  for (const auto& [f, c] : in.scoring_cameras) {
+    os << ' ' << f;
+    for (int r = 0; r < 3; ++r) os << ' ' << c.R(r, 0) << ' ' << c.R(r, 1) << ' ' << c.R(r, 2) << ' ' << c.t[r];
+    os << ' ' << c.intrinsics.fx << ' ' << c.intrinsics.fy;
+  }
   os << '\n';
   std::uint64_t h = fnv1a(os.str());
   for (const auto& img : in.images) h = fnv1a(img.data.data(), img.data.size() * sizeof(Scalar), h);
@@ -299,6 +327,7 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
     in.point_frames.push_back(std::move(frames));
   }
   in.description = "colmap " + dir + " frames " + (source_range.empty() ? std::string("all") : source_range);
+  in.camera_path = "recorded model (a lab figure when its maker estimated it with frames outside the source)";
   return in;
 }
 
@@ -323,6 +352,7 @@ PipelineInput<Scalar> synthetic_pipeline_input(const SyntheticInputParams& p, in
   os << "synthetic (" << p.frames << " frames, source 1-" << p.source_frames << ", " << p.width << "x" << p.height
      << ", seed " << p.seed << (p.backdrop ? ", textured backdrop" : "") << ")";
   in.description = os.str();
+  in.camera_path = "synthetic: noisy recorded cameras of every frame";
   return in;
 }
 

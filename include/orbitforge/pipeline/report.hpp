@@ -65,6 +65,11 @@ inline std::string report_markdown(const nlohmann::json& r) {
         "|---|---|---|---|---|---|---|---|---|\n";
   for (const char* k : {"R0", "R1", "R1_paper", "bound"}) {
     if (!at(r, "quality", k).is_object()) continue;
+    if (at(r, "quality", k).contains("equals")) {
+      md << "| " << k << " | = " << num(at(r, "quality", k, "equals")) << " (" << num(at(r, "quality", k, "why"))
+         << ") | | | | | | | |\n";
+      continue;
+    }
     md << "| " << k;
     for (const char* s : {"supported_heldout", "gap_heldout", "supported_train"}) {
       const nlohmann::json& q = at(r, "quality", k, s);
@@ -77,6 +82,30 @@ inline std::string report_markdown(const nlohmann::json& r) {
   md << "\nInput: " << num(at(r, "points", "kept")) << " of " << num(at(r, "points", "total"))
      << " sparse points kept (" << num(at(r, "points", "rule")) << "); background "
      << num(at(r, "background", "color")) << " (" << num(at(r, "background", "reason")) << ").\n";
+  const auto& cams = at(r, "cameras");
+  if (cams.is_object()) {
+    md << "\n## Cameras\n\n" << num(at(cams, "path")) << ".";
+    if (at(cams, "estimate").is_object())
+      md << " Focal length " << num(at(cams, "estimate", "focal_px"), 1) << " px (" << num(at(cams, "estimate", "chosen_by"))
+         << ").";
+    const auto& ref = at(cams, "reference");
+    if (ref.is_object()) {
+      md << "\n\nAgainst the reference model " << num(at(ref, "reference")) << " (aligned on "
+         << num(at(ref, "alignment", "cameras")) << " source frames):\n\n| | estimated | reference |\n|---|---|---|\n"
+         << "| source arc on the fitted orbit (deg) | " << num(at(ref, "source_arc_deg", "user"), 1) << " | "
+         << num(at(ref, "source_arc_deg", "reference"), 1) << " |\n"
+         << "| focal length at the working size (px) | " << num(at(ref, "focal_px", "user"), 1) << " | "
+         << num(at(ref, "focal_px", "reference"), 1) << " |\n\n"
+         << "- alignment residual: centres " << num(at(ref, "alignment", "centre_rms_relative"), 4)
+         << " of their spread, rotations mean " << num(at(ref, "alignment", "rotation_mean_deg"), 2) << " / max "
+         << num(at(ref, "alignment", "rotation_max_deg"), 2) << " deg\n"
+         << "- frames outside the source against the fitted orbit's constant-speed motion: mean "
+         << num(at(ref, "gap_azimuth_error_deg", "mean_abs"), 2) << " / max "
+         << num(at(ref, "gap_azimuth_error_deg", "max_abs"), 2) << " deg over "
+         << num(at(ref, "gap_azimuth_error_deg", "frames")) << " frames\n";
+    }
+    md << "\n";
+  }
   md << "\n## Completion\n\n";
   md << "- loop-endpoint L1 of V_hat (0-255): " << num(at(r, "completion", "loop_endpoint_l1")) << "\n";
   md << "- anchor index error: mean " << num(at(r, "completion", "anchor_index_error", "mean")) << ", max "

@@ -7,8 +7,12 @@
 //   cameras/colmap/images/        the SOURCE frames only (hard links): the
 //                                 folder COLMAP sees
 //   cameras/colmap/database.db    features and matches
-//   cameras/colmap/sparse/N/      every model the mapper wrote
-//   cameras/sparse/0/             the model with the most registered images
+//   cameras/colmap/sparse/N/      every model the mapper wrote with its focal free
+//   cameras/colmap/fixed/focal_F/ the mapper's model with the focal held at F
+//                                 (--focal / --fov, or each candidate of the search)
+//   cameras/sparse/0/             the chosen model: the free mapper's largest, or
+//                                 the given focal's, or the search's best
+//   cameras/estimate.json         the focal length, how it was chosen, every candidate
 //   cameras/logs/*.log            each tool's command line and output
 //
 // Evidence: frames outside the source range (--frames) never reach COLMAP, as a
@@ -36,129 +40,12 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
+#include "orbitforge/pipeline/colmap_commands.hpp"
 #include "orbitforge/pipeline/external_tools.hpp"
+#include "orbitforge/pipeline/focal_search.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
 
 namespace orbitforge {
-
-struct CameraStageParams {
-  std::string video;            // a video file (decoded with ffmpeg), or
-  std::string images;           // a folder of frames, in name order
-  std::string frames = "1-33";  // the source range: the only frames COLMAP sees
-  double fps = 0;               // video only: resample to this frame rate (0 = every decoded frame)
-  std::string camera_model = "SIMPLE_PINHOLE";  // one camera for all frames: SIMPLE_PINHOLE or PINHOLE
-  int sequential_overlap = 10;                  // sequential_matcher: neighbours matched per frame
-  // A generated orbit turns a few degrees per frame, so the default 16 degrees
-  // for the initial pair rejects every nearby pair; v3d's cameras were made with 4.
-  double init_min_tri_angle_deg = 4;
-  int threads = 0;  // COLMAP's threads (0 = all)
-  std::function<void(const std::string&)> log;  // progress lines (stderr when empty)
-};
-
-struct CameraStageResult {
-  std::string dataset;   // OUT/cameras: images/ + sparse/0, for load_colmap_input
-  std::string key;
-  bool skipped = false;  // the record verified: nothing ran
-  int frames = 0;        // frames in cameras/images
-  std::vector<std::string> source_names, registered_names;  // given to COLMAP / in the chosen model
-  double seconds = 0;    // this run's wall time (the recorded one when skipped)
-};
-
-// Programs a camera stage with these inputs needs: {program, Debian package}.
-inline std::vector<std::pair<std::string, std::string>> camera_stage_programs(const CameraStageParams& p) {
-  std::vector<std::pair<std::string, std::string>> v;
-  if (!p.video.empty()) v.push_back({"ffmpeg", "ffmpeg"});
-  v.push_back({"colmap", "colmap"});
-  return v;
-}
-
-namespace cameras_detail {
-namespace fs = std::filesystem;
-
-inline std::string frame_name(int i) { return numbered_png(i, 5); }
-
-inline std::uint64_t hash_file(const std::string& path, std::uint64_t h) {
-  std::ifstream in(path, std::ios::binary);
-  ensure(in.is_open(), path, ": cannot open for reading");
-  std::vector<char> buf(1 << 20);
-  while (in) {
-    in.read(buf.data(), std::streamsize(buf.size()));
-    h = fnv1a(buf.data(), std::size_t(in.gcount()), h);
-  }
-  ensure(!in.bad(), path, ": read error");
-  return h;
-}
-
-// COLMAP runs headless: its Qt parts need the offscreen platform without a display.
-inline std::vector<std::pair<std::string, std::string>> colmap_env() { return {{"QT_QPA_PLATFORM", "offscreen"}}; }
-
-inline std::string number_text(double x) {
-  std::ostringstream os;
-  os.precision(10);
-  os << x;
-  return os.str();
-}
-
-}  // namespace cameras_detail
-
-// ffmpeg: every frame of `video` (or `fps` frames per second) as dir/00001.png, ...
-// Paths are made absolute (a relative name with ':' would read as a protocol)
-// and '%' in the folder is doubled (the image2 muxer's pattern syntax).
-inline ToolCommand ffmpeg_extract_command(const std::string& video, const std::string& dir, double fps = 0) {
-  namespace fs = std::filesystem;
-  std::string pattern;
-  for (char c : fs::absolute(dir).string()) pattern += c == '%' ? std::string("%%") : std::string(1, c);
-  pattern += "/%05d.png";
-  ToolCommand c{"ffmpeg", {"ffmpeg", "-nostdin", "-hide_banner", "-y", "-i", fs::absolute(video).string()}, {}};
-  if (fps > 0) {
-    c.argv.push_back("-vf");
-    c.argv.push_back("fps=" + cameras_detail::number_text(fps));
-  }
-  // -vsync 0: one PNG per decoded frame, none duplicated or dropped to fit a rate.
-  for (const char* a : {"-vsync", "0", "-start_number", "1"}) c.argv.push_back(a);
-  c.argv.push_back(pattern);
-  return c;
-}
-
-inline ToolCommand colmap_feature_extractor_command(const std::string& database, const std::string& image_dir,
-                                                    const CameraStageParams& p) {
-  ToolCommand c{"colmap feature_extractor",
-                {"colmap", "feature_extractor", "--database_path", database, "--image_path", image_dir,
-                 "--ImageReader.single_camera", "1", "--ImageReader.camera_model", p.camera_model,
-                 "--SiftExtraction.use_gpu", "0", "--log_to_stderr", "1"},
-                cameras_detail::colmap_env()};
-  if (p.threads > 0) {
-    c.argv.push_back("--SiftExtraction.num_threads");
-    c.argv.push_back(std::to_string(p.threads));
-  }
-  return c;
-}
-
-inline ToolCommand colmap_sequential_matcher_command(const std::string& database, const CameraStageParams& p) {
-  ToolCommand c{"colmap sequential_matcher",
-                {"colmap", "sequential_matcher", "--database_path", database, "--SiftMatching.use_gpu", "0",
-                 "--SequentialMatching.overlap", std::to_string(p.sequential_overlap), "--log_to_stderr", "1"},
-                cameras_detail::colmap_env()};
-  if (p.threads > 0) {
-    c.argv.push_back("--SiftMatching.num_threads");
-    c.argv.push_back(std::to_string(p.threads));
-  }
-  return c;
-}
-
-inline ToolCommand colmap_mapper_command(const std::string& database, const std::string& image_dir,
-                                         const std::string& output_dir, const CameraStageParams& p) {
-  ToolCommand c{"colmap mapper",
-                {"colmap", "mapper", "--database_path", database, "--image_path", image_dir, "--output_path",
-                 output_dir, "--Mapper.init_min_tri_angle", cameras_detail::number_text(p.init_min_tri_angle_deg),
-                 "--log_to_stderr", "1"},
-                cameras_detail::colmap_env()};
-  if (p.threads > 0) {
-    c.argv.push_back("--Mapper.num_threads");
-    c.argv.push_back(std::to_string(p.threads));
-  }
-  return c;
-}
 
 // Hard-links (or copies, across file systems) the frames of `range` (1-based
 // positions in `names`) from `from` into the fresh folder `to`; returns their names.
@@ -182,29 +69,21 @@ inline std::vector<std::string> link_source_frames(const std::string& from, cons
   return linked;
 }
 
-// The numbered model folder under `sparse_dir` with the most registered images
-// ("" when there is none); `registered` gets its count. Ties go to the lower number.
-inline std::string largest_colmap_model(const std::string& sparse_dir, std::size_t* registered = nullptr) {
-  namespace fs = std::filesystem;
-  std::string best;
-  std::size_t best_n = 0;
-  long best_index = -1;
-  std::error_code ec;
-  if (!fs::is_directory(sparse_dir, ec)) return best;
-  for (const auto& e : fs::directory_iterator(sparse_dir, ec)) {
-    const std::string name = e.path().filename().string();
-    if (!e.is_directory() || name.empty() || name.find_first_not_of("0123456789") != std::string::npos) continue;
-    const std::size_t n = read_colmap_model(e.path().string()).images.size();
-    const long index = std::stol(name);
-    if (best.empty() || n > best_n || (n == best_n && index < best_index)) {
-      best = e.path().string();
-      best_n = n;
-      best_index = index;
-    }
+namespace cameras_detail {
+
+inline std::uint64_t hash_file(const std::string& path, std::uint64_t h) {
+  std::ifstream in(path, std::ios::binary);
+  ensure(in.is_open(), path, ": cannot open for reading");
+  std::vector<char> buf(1 << 20);
+  while (in) {
+    in.read(buf.data(), std::streamsize(buf.size()));
+    h = fnv1a(buf.data(), std::size_t(in.gcount()), h);
   }
-  if (registered) *registered = best_n;
-  return best;
+  ensure(!in.bad(), path, ": read error");
+  return h;
 }
+
+}  // namespace cameras_detail
 
 // Runs (or verifies and skips) the cameras stage into out/cameras; see the top of the file.
 inline CameraStageResult stage_cameras(const std::string& out, const CameraStageParams& p) {
@@ -225,13 +104,16 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   const fs::path stage_dir = fs::path(out) / "cameras";
   const fs::path images_dir = stage_dir / "images", colmap_dir = stage_dir / "colmap", logs = stage_dir / "logs";
   const fs::path colmap_images = colmap_dir / "images", database = colmap_dir / "database.db";
-  const fs::path raw_models = colmap_dir / "sparse", model_dir = stage_dir / "sparse" / "0";
+  const fs::path model_dir = stage_dir / "sparse" / "0";
 
   // The key: the input's bytes and the settings that shape the result.
   nlohmann::json settings = {{"frames", p.frames},
                              {"camera_model", p.camera_model},
                              {"sequential_overlap", p.sequential_overlap},
-                             {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
+                             {"init_min_tri_angle_deg", p.init_min_tri_angle_deg},
+                             {"focal_given_px", p.focal_px},
+                             {"fov_given_deg", p.fov_deg},
+                             {"focal_factors", p.focal_factors}};
   std::uint64_t h = kFnv1aSeed;
   std::vector<std::string> input_names;
   if (!p.video.empty()) {
@@ -310,34 +192,28 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   r.source_names = link_source_frames(images_dir.string(), names, p.frames, colmap_images.string());
   log("   cameras: COLMAP on the " + std::to_string(r.source_names.size()) + " source frames (" + p.frames + ") of " +
       std::to_string(names.size()));
-  fs::create_directories(raw_models);
-  const std::vector<std::pair<ToolCommand, std::string>> steps = {
-      {colmap_feature_extractor_command(database.string(), colmap_images.string(), p), "feature_extractor.log"},
-      {colmap_sequential_matcher_command(database.string(), p), "sequential_matcher.log"},
-      {colmap_mapper_command(database.string(), colmap_images.string(), raw_models.string(), p), "mapper.log"}};
-  for (const auto& [cmd, log_name] : steps) {
+  auto timed = [&](const ToolCommand& cmd, const std::string& log_name) {
     const ToolRun t = run_tool(cmd, (logs / log_name).string());
-    char b[160];
+    char b[200];
     std::snprintf(b, sizeof(b), "   cameras: %s: %.1f s", cmd.tool.c_str(), t.seconds);
     log(b);
-  }
-  std::size_t registered = 0;
-  const std::string best = largest_colmap_model(raw_models.string(), &registered);
-  ensure(!best.empty() && registered > 0, "colmap mapper registered none of the ", r.source_names.size(),
-         " source frames (no model written); its log: ", (logs / "mapper.log").string());
+    return t.seconds;
+  };
+  timed(colmap_feature_extractor_command(database.string(), colmap_images.string(), p), "feature_extractor.log");
+  timed(colmap_sequential_matcher_command(database.string(), p), "sequential_matcher.log");
+  const FocalChoice choice = map_source_frames(colmap_dir.string(), colmap_images.string(), r.source_names, p, timed);
+  const std::string best = choice.model_dir;
   fs::create_directories(model_dir);
   std::vector<std::string> outputs;
   for (const char* f : {"cameras.bin", "images.bin", "points3D.bin"}) {
     ensure(fs::exists(fs::path(best) / f), "colmap mapper: model ", best, " has no ", f);
     fs::copy_file(fs::path(best) / f, model_dir / f, fs::copy_options::overwrite_existing);
   }
+  write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
   for (const auto& [id, im] : read_colmap_model(model_dir.string()).images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
-  std::size_t models = 0;
-  for (const auto& e : fs::directory_iterator(raw_models)) models += e.is_directory() ? 1 : 0;
   log("   cameras: COLMAP registered " + std::to_string(r.registered_names.size()) + " of " +
-      std::to_string(r.source_names.size()) + " source frames (model " + fs::path(best).filename().string() + " of " +
-      std::to_string(models) + " the mapper wrote)");
+      std::to_string(r.source_names.size()) + " source frames; " + choice.summary);
 
   // The record: every frame, what COLMAP saw, its database and the chosen model.
   const std::string base = "cameras/";
@@ -345,10 +221,11 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   for (const auto& n : r.source_names) outputs.push_back(base + "colmap/images/" + n);
   outputs.push_back(base + "colmap/database.db");
   for (const char* f : {"cameras.bin", "images.bin", "points3D.bin"}) outputs.push_back(base + "sparse/0/" + f);
+  outputs.push_back(base + "estimate.json");
   settings["frames_total"] = names.size();
   settings["source_frames"] = r.source_names.size();
   settings["registered"] = r.registered_names.size();
-  settings["mapper_models"] = models;
+  settings["focal_px"] = choice.focal_px;
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   record_stage(out, "cameras", r.key, r.seconds, settings, outputs);
   return r;

@@ -17,6 +17,7 @@
 #include "orbitforge/pipeline/completion.hpp"
 #include "orbitforge/pipeline/input_json.hpp"
 #include "orbitforge/pipeline/pictures.hpp"
+#include "orbitforge/pipeline/reference.hpp"
 #include "orbitforge/pipeline/report.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 
@@ -38,11 +39,21 @@ nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Sc
   std::vector<ImageQuality> q;
   for (int i : frames) {
     const auto& fc = run.input->cameras[std::size_t(i)];
-    q.push_back(compare_images(r.render(SceneView<Scalar>(scene), fc.camera).color, run.input->images[std::size_t(i)],
-                               fc.name, run.params.threads));
+    q.push_back(compare_images(r.render(SceneView<Scalar>(scene), run.input->scoring_camera(i)).color,
+                               run.input->images[std::size_t(i)], fc.name, run.params.threads));
   }
   const QualityMean m = mean_quality(q);
   return {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}};
+}
+
+// Where the cameras came from and, on the user's path, what the reference says of them.
+// `estimate` is the cameras stage's account of its focal length ("" when no stage ran).
+template <class Scalar>
+nlohmann::json cameras_json(const PipelineInput<Scalar>& in, const OrbitFit<Scalar>& fit, const std::string& estimate) {
+  nlohmann::json j = {{"path", in.camera_path}};
+  if (!estimate.empty()) j["estimate"] = nlohmann::json::parse(read_file_bytes(estimate));
+  if (in.reference) j["reference"] = reference_report(in, fit);
+  return j;
 }
 
 template <class Scalar>
@@ -55,7 +66,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   std::uint64_t h = fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1")));
   for (const char* extra : {"g1_paper", "bound"})
     if (run.keys.count(extra)) h = fnv1a(run.keys.at(extra), h);
-  const std::string key = hex64(fnv1a("report v2", h));
+  const std::string key = hex64(fnv1a("report v3", h));
   run.keys["report"] = key;
   const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
                                             "top_view.png"};
@@ -101,7 +112,16 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   nlohmann::json quality = {{"R0", rows(read_ply<Scalar>((out / "gmed0.ply").string()))},
                             {"R1", rows(read_ply<Scalar>((out / "final.ply").string()))}};
   if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(read_ply<Scalar>((out / "g1_paper" / "final.ply").string()));
-  if (run.keys.count("bound")) quality["bound"] = rows(read_ply<Scalar>((out / "bound" / "bound.ply").string()));
+  if (run.keys.count("bound")) {
+    // With G1 trained on exactly the oracle's set the bound is G1: its figures would only repeat R1's.
+    const nlohmann::json rec = nlohmann::json::parse(read_file_bytes((out / "stages" / "bound.json").string()));
+    if (rec.at("settings").value("same_as_g1", false))
+      quality["bound"] = {{"equals", "R1"},
+                          {"why", "G1 trained on the oracle's frames with the bound's settings: the bound is G1 by "
+                                  "construction, not a separate measurement"}};
+    else
+      quality["bound"] = rows(read_ply<Scalar>((out / "bound" / "bound.ply").string()));
+  }
 
   // Pictures.
   const int tile = std::min(128, in.width);
@@ -145,6 +165,9 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   total += report_secs;
 
   const nlohmann::json orbit = nlohmann::json::parse(read_file_bytes((out / "orbit.json").string()));
+  std::string estimate;
+  if (run.keys.count("cameras") && fs::exists(out / "cameras" / "estimate.json"))
+    estimate = (out / "cameras" / "estimate.json").string();
   nlohmann::json completion = vj.at("metrics");
   nlohmann::json r = {{"input", in.description},
                       {"completion_provider", vj.value("provider", std::string())},
@@ -168,6 +191,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"frames", source_frames_json(in)},
                       {"points", points_json(in)},
                       {"background", {{"color", in.background}, {"reason", in.background_reason}}},
+                      {"cameras", cameras_json(in, run.fit, estimate)},
                       {"coverage", coverage},
                       {"diagnostics", orbit.at("diagnostics")},
                       {"quality", quality},

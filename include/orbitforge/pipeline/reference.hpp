@@ -1,0 +1,158 @@
+#pragma once
+// Scoring on the user's path: cameras estimated from the source frames alone,
+// judged against a reference model estimated from every frame.
+//
+// A user has only the source video, so the method's cameras (and everything
+// after them: the orbit, the support bins, the completion request, G1's
+// cameras) must come from the source frames alone. A reference model of the
+// whole recorded orbit is evidence the method would not have; it reaches only
+// what is evaluated:
+//   - it is aligned to the estimated cameras by a similarity fitted on the
+//     source frames' centres (geometry/camera_alignment.hpp), checked on their
+//     rotations;
+//   - frames outside the source get the aligned reference camera (with the
+//     reference intrinsics) and the reference image: the oracle completion
+//     provider and the gap scores read them, as they read a recorded model's;
+//   - withheld source frames are scored at the aligned reference camera
+//     (PipelineInput::scoring_cameras), not at the one the user's estimator
+//     gave them, so a wrong focal length or a drifting arc shows in the score.
+// Training frames, sparse points and the orbit fit never see the reference.
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/geometry/angles.hpp"
+#include "orbitforge/geometry/camera_alignment.hpp"
+#include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/pipeline/input.hpp"
+
+namespace orbitforge {
+
+// Attaches `ref` (the same video's frames in the same order, loaded at the
+// input's working size) to `user`, whose cameras were estimated from the source
+// frames only. Call after the withheld frames are chosen. Returns the alignment.
+template <class Scalar>
+CameraAlignment attach_reference(PipelineInput<Scalar>& user, const PipelineInput<Scalar>& ref,
+                                 const std::string& ref_description) {
+  ensure(user.cameras.size() == ref.cameras.size(), "reference ", ref_description, ": ", ref.cameras.size(),
+         " frames, the input has ", user.cameras.size(), " (the reference must be the same video's frames)");
+  ensure(user.width == ref.width && user.height == ref.height, "reference ", ref_description, ": loaded at ",
+         ref.width, "x", ref.height, ", the input works at ", user.width, "x", user.height);
+  std::vector<Camera<Scalar>> from, to;
+  for (int f : user.source) {
+    const auto& rc = ref.cameras[std::size_t(f)];
+    if (!rc.valid || !camera_problem(rc).empty()) continue;
+    from.push_back(rc.camera);
+    to.push_back(user.cameras[std::size_t(f)].camera);
+  }
+  ensure(from.size() >= 3, "reference ", ref_description, ": only ", from.size(),
+         " source frames have a camera in both the input and the reference; 3 are needed to align them");
+  const CameraAlignment a = align_camera_centres(from, to);
+
+  std::vector<char> is_source(user.cameras.size(), 0);
+  for (int f : user.source) is_source[std::size_t(f)] = 1;
+  user.scoring_cameras.clear();
+  for (std::size_t i = 0; i < user.cameras.size(); ++i) {
+    const auto& rc = ref.cameras[i];
+    const bool usable = rc.valid && !ref.images[i].empty() && camera_problem(rc).empty();
+    if (is_source[i]) {
+      if (usable && user.is_withheld(int(i))) user.scoring_cameras[int(i)] = a.transform.apply(rc.camera);
+      continue;
+    }
+    if (i >= std::size_t(user.source_first) && i <= std::size_t(user.source_last)) continue;  // skipped source frame
+    user.cameras[i].valid = usable;
+    user.images[i] = usable ? ref.images[i] : Image<Scalar>();
+    if (usable) user.cameras[i].camera = a.transform.apply(rc.camera);
+  }
+  ReferenceInfo<Scalar> info;
+  info.description = ref_description;
+  info.alignment = a;
+  for (int f : user.source)
+    if (ref.cameras[std::size_t(f)].valid) info.source_cameras[f] = a.transform.apply(ref.cameras[std::size_t(f)].camera);
+  user.reference = std::move(info);
+  return a;
+}
+
+namespace reference_detail {
+
+// Least-squares line through (x, y).
+inline std::pair<double, double> line_fit(const std::vector<double>& x, const std::vector<double>& y) {
+  const double n = double(x.size());
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  for (std::size_t i = 0; i < x.size(); ++i) {
+    sx += x[i];
+    sy += y[i];
+    sxx += x[i] * x[i];
+    sxy += x[i] * y[i];
+  }
+  const double d = n * sxx - sx * sx;
+  const double slope = d != 0 ? (n * sxy - sx * sy) / d : 0;
+  return {(sy - slope * sx) / n, slope};
+}
+
+}  // namespace reference_detail
+
+// What the reference says of the estimated cameras and the fitted orbit:
+// the alignment's residuals; the source arc on the fitted orbit by the user's
+// cameras and by the aligned reference; the focal lengths (at the working
+// size); and, for every frame outside the source, how far its reference camera
+// lies from where the fitted orbit's constant-speed motion puts that frame.
+template <class Scalar>
+nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<Scalar>& fit) {
+  if (!in.reference) return nullptr;
+  const CameraAlignment& a = in.reference->alignment;
+  const auto& g = fit.orbit;
+  auto azimuth = [&](const Camera<Scalar>& c) {
+    return double(orbit_azimuth_deg<Scalar>(c.center(), g.center, g.e1, g.e2));
+  };
+  // Source azimuths, unwrapped along the frame order, against frame numbers.
+  std::vector<double> frame, az;
+  for (int f : in.source) {
+    const double v = azimuth(in.cameras[std::size_t(f)].camera);
+    frame.push_back(f);
+    az.push_back(az.empty() ? v : az.back() + wrap_deg_180(v - az.back()));
+  }
+  const auto [a0, speed] = reference_detail::line_fit(frame, az);
+  double sum_abs = 0, max_abs = 0;
+  int n = 0;
+  std::vector<char> is_source(in.cameras.size(), 0);
+  for (int f : in.source) is_source[std::size_t(f)] = 1;
+  for (std::size_t i = 0; i < in.cameras.size(); ++i) {
+    if (is_source[i] || !in.cameras[i].valid) continue;
+    if (int(i) >= in.source_first && int(i) <= in.source_last) continue;
+    const double predicted = a0 + speed * double(i);
+    const double err = wrap_deg_180(azimuth(in.cameras[i].camera) - predicted);
+    sum_abs += std::abs(err);
+    max_abs = std::max(max_abs, std::abs(err));
+    ++n;
+  }
+  // The reference's own source arc and focal length, on the same fitted orbit.
+  std::vector<double> ref_az;
+  std::vector<double> ref_focal, user_focal;
+  for (const auto& [f, c] : in.reference->source_cameras) {
+    ref_az.push_back(azimuth(c));
+    ref_focal.push_back(double(c.intrinsics.fx));
+  }
+  for (int f : in.source) user_focal.push_back(double(in.cameras[std::size_t(f)].camera.intrinsics.fx));
+  auto median = [](std::vector<double> v) {
+    if (v.empty()) return 0.0;
+    std::nth_element(v.begin(), v.begin() + std::ptrdiff_t(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  return {{"reference", in.reference->description},
+          {"alignment",
+           {{"cameras", a.cameras},
+            {"scale", a.transform.scale},
+            {"centre_rms_relative", a.centre_rms_relative},
+            {"rotation_mean_deg", a.rotation_mean_deg},
+            {"rotation_max_deg", a.rotation_max_deg}}},
+          {"source_arc_deg", {{"user", double(fit.diagnostics.source_span_deg)}, {"reference", azimuth_span_of(ref_az)}}},
+          {"focal_px", {{"user", median(user_focal)}, {"reference", median(ref_focal)}}},
+          {"orbit_speed_deg_per_frame", speed},
+          {"gap_azimuth_error_deg", {{"frames", n}, {"mean_abs", n ? sum_abs / n : 0.0}, {"max_abs", max_abs}}}};
+}
+
+}  // namespace orbitforge
