@@ -69,6 +69,31 @@ struct SyntheticOrbit {
   }
 };
 
+// Registration drift as COLMAP shows it on a short arc: from camera k on, the
+// rotation about the orbit axis (through `center` along `axis`) is compressed
+// by `factor` about camera k, centre and orientation together: camera i > k is
+// rotated about the axis by (factor - 1) times its azimuth from camera k, so
+// every centre stays on the circle and keeps aiming at the axis.
+template <class S>
+void under_rotate(std::vector<orbitforge::FrameCamera<S>>& cams, int k, double factor,
+                  const Eigen::Matrix<S, 3, 1>& center, const Eigen::Matrix<S, 3, 1>& axis) {
+  using Vec3 = Eigen::Matrix<S, 3, 1>;
+  const Vec3 n = axis.normalized();
+  auto azimuth = [&](const Vec3& p) {
+    const Vec3 d = p - center - n * n.dot(p - center);
+    const Vec3 e1 = (cams[k].camera.center() - center - n * n.dot(cams[k].camera.center() - center)).normalized();
+    return std::atan2(double(n.cross(e1).dot(d)), double(e1.dot(d)));
+  };
+  for (std::size_t i = std::size_t(k) + 1; i < cams.size(); ++i) {
+    auto& c = cams[i].camera;
+    const Vec3 o = c.center();
+    const Eigen::Matrix<S, 3, 3> Q = Eigen::AngleAxis<S>(S((factor - 1) * azimuth(o)), n).toRotationMatrix();
+    const Vec3 o_new = Q * (o - center) + center;
+    c.R = c.R * Q.transpose();
+    c.t = -c.R * o_new;
+  }
+}
+
 template <class S>
 Eigen::Matrix<S, 3, 3> random_rotation(std::mt19937& rng) {
   std::normal_distribution<double> g(0, 1);

@@ -63,7 +63,7 @@ const char* kImagesTxt =
 const char* kPointsTxt =
     "# points\n"
     "4 0.5 1.5 2.5 10 20 30 0.75 11 0 13 0\n"
-    "9 -1 -2 -3 255 0 128 1.25 11 0\n";
+    "9 -1 -2 -3 255 0 128 1.25 11 1\n";
 
 std::string cameras_bin() {
   Bytes b;
@@ -98,7 +98,7 @@ std::string points_bin() {
   b.put<std::uint64_t>(4).put(0.5).put(1.5).put(2.5).put<std::uint8_t>(10).put<std::uint8_t>(20).put<std::uint8_t>(30);
   b.put(0.75).put<std::uint64_t>(2).put<std::int32_t>(11).put<std::int32_t>(0).put<std::int32_t>(13).put<std::int32_t>(0);
   b.put<std::uint64_t>(9).put(-1.0).put(-2.0).put(-3.0).put<std::uint8_t>(255).put<std::uint8_t>(0).put<std::uint8_t>(128);
-  b.put(1.25).put<std::uint64_t>(1).put<std::int32_t>(11).put<std::int32_t>(0);
+  b.put(1.25).put<std::uint64_t>(1).put<std::int32_t>(11).put<std::int32_t>(1);
   return b.s;
 }
 
@@ -121,6 +121,11 @@ void require_same_models(const ColmapModel& a, const ColmapModel& b) {
     CHECK(im.tvec == j.tvec);
     CHECK(im.camera_id == j.camera_id);
     CHECK(im.name == j.name);
+    REQUIRE(im.points2D.size() == j.points2D.size());
+    for (std::size_t k = 0; k < im.points2D.size(); ++k) {
+      CHECK(im.points2D[k].xy == j.points2D[k].xy);
+      CHECK(im.points2D[k].point3D_id == j.points2D[k].point3D_id);
+    }
   }
   REQUIRE(a.points.size() == b.points.size());
   for (std::size_t i = 0; i < a.points.size(); ++i) {
@@ -129,6 +134,7 @@ void require_same_models(const ColmapModel& a, const ColmapModel& b) {
     CHECK(a.points[i].rgb == b.points[i].rgb);
     CHECK(a.points[i].error == b.points[i].error);
     CHECK(a.points[i].track_images == b.points[i].track_images);
+    CHECK(a.points[i].track_point2D == b.points[i].track_point2D);
   }
 }
 
@@ -234,6 +240,21 @@ TEST_CASE("COLMAP binary model equals the same model in text", "[io][colmap]") {
   CHECK(b.points[1].rgb == std::array<std::uint8_t, 3>{{255, 0, 128}});
   CHECK(t.points[0].track_images == std::vector<int>{11, 13});  // which images saw each point
   CHECK(b.points[1].track_images == std::vector<int>{11});
+  // The 2D observations: each image's keypoints with their 3D point (-1: none),
+  // and each track element's keypoint index.
+  for (const ColmapModel* m : {&b, &t}) {
+    const ColmapImage& im11 = m->images.at(11);
+    REQUIRE(im11.points2D.size() == 2);
+    CHECK(im11.points2D[0].xy == Eigen::Vector2d(10.5, 20.5));
+    CHECK(im11.points2D[0].point3D_id == 4);
+    CHECK(im11.points2D[1].xy == Eigen::Vector2d(30.5, 40.5));
+    CHECK(im11.points2D[1].point3D_id == -1);
+    CHECK(m->images.at(12).points2D.empty());
+    REQUIRE(m->images.at(13).points2D.size() == 1);
+    CHECK(m->images.at(13).points2D[0].xy == Eigen::Vector2d(1, 2));
+    CHECK(m->points[0].track_point2D == std::vector<int>{0, 0});
+    CHECK(m->points[1].track_point2D == std::vector<int>{1});
+  }
   require_same_models(b, t);
 
   const auto fb = colmap_frame_cameras<double>(b);
@@ -293,6 +314,29 @@ TEST_CASE("COLMAP binary: corrupt files are clear errors", "[io][colmap]") {
     require_error([&] { parse_colmap_cameras_binary(b, "cameras.bin"); },
                   {"cameras.bin", "camera record 0", "byte offset 8", "unknown camera model id 42"});
   }
+  {
+    // A POINTS2D count beyond the file: refused before anything is allocated.
+    std::string b = images_bin();
+    const std::size_t at = 8 + 4 + 7 * 8 + 4 + 6;  // first image's POINTS2D count, after "b.png\0"
+    const std::uint64_t huge = std::uint64_t(1) << 50;
+    std::memcpy(&b[at], &huge, 8);
+    require_error([&] { parse_colmap_images_binary(b, "images.bin"); }, {"images.bin", "POINTS2D count", "cannot fit"});
+  }
+  {
+    std::string b = images_bin();
+    const std::size_t at = 8 + 4 + 7 * 8 + 4 + 6 + 8 + 16;  // first keypoint's POINT3D_ID
+    const std::int64_t bad = -7;
+    std::memcpy(&b[at], &bad, 8);
+    require_error([&] { parse_colmap_images_binary(b, "images.bin"); },
+                  {"images.bin", "image record 0", "POINTS2D 0", "POINT3D_ID -7"});
+  }
+  {
+    std::string b = points_bin();
+    const std::uint32_t bad = 0x80000000u;
+    std::memcpy(&b[8 + 8 + 24 + 3 + 8 + 8 + 4], &bad, 4);  // first point's first POINT2D_IDX
+    require_error([&] { parse_colmap_points3D_binary(b, "points3D.bin"); },
+                  {"points3D.bin", "point record 0", "point2D index 2147483648", "too large"});
+  }
   require_error([] { parse_colmap_images_binary(images_bin() + "xyz", "images.bin"); },
                 {"images.bin", "3 unexpected bytes"});
   {
@@ -338,6 +382,8 @@ TEST_CASE("COLMAP text: bad input is a clear error naming file and line", "[io][
                 {"images.txt:3", "POINTS2D", "triples"});
   require_error([] { parse_colmap_images_text("1 1 0 0 0 0 0 0 1 a.png\n1 2 x\n", "images.txt"); },
                 {"images.txt:2", "POINT3D_ID", "'x'"});
+  require_error([] { parse_colmap_images_text("1 1 0 0 0 0 0 0 1 a.png\n1 2 3 4 5 -2\n", "images.txt"); },
+                {"images.txt:2", "image 1", "POINTS2D 1", "POINT3D_ID -2"});
   require_error(
       [] { parse_colmap_images_text("1 1 0 0 0 0 0 0 1 a.png\n\n1 1 0 0 0 0 0 0 1 b.png\n\n", "images.txt"); },
       {"images.txt:3", "duplicate IMAGE_ID 1"});
@@ -346,6 +392,8 @@ TEST_CASE("COLMAP text: bad input is a clear error naming file and line", "[io][
                 {"points3D.txt:1", "outside 0..255"});
   require_error([] { parse_colmap_points3D_text("1 0 0 0 1 2 3 0.5 7\n", "points3D.txt"); },
                 {"points3D.txt:1", "TRACK[]", "pairs"});
+  require_error([] { parse_colmap_points3D_text("1 0 0 0 1 2 3 0.5 7 -1\n", "points3D.txt"); },
+                {"points3D.txt:1", "POINT2D_IDX -1", "negative"});
   require_error([] { parse_colmap_points3D_text("1 0 0 0 1 2 3\n", "points3D.txt"); },
                 {"points3D.txt:1", "expected POINT3D_ID"});
 
@@ -412,6 +460,23 @@ TEMPLATE_TEST_CASE("COLMAP shared data: v3d and Middlebury models load", "[io][c
     const ColmapModel m = read_colmap_model(orbitforge_test::shared_path("v3d/" + name));
     CHECK(m.images.size() == 90);
     CHECK(m.points.size() > 100);
+    // Both sides of the 2D observations agree: each track element's keypoint
+    // names its point, and the keypoints with a point are the track elements.
+    std::size_t track_total = 0, mismatched = 0, with_point = 0;
+    for (const ColmapPoint& p : m.points) {
+      REQUIRE(p.track_point2D.size() == p.track_images.size());
+      track_total += p.track_images.size();
+      for (std::size_t k = 0; k < p.track_images.size(); ++k) {
+        const auto& kps = m.images.at(p.track_images[k]).points2D;
+        const auto idx = std::size_t(p.track_point2D[k]);
+        if (idx >= kps.size() || kps[idx].point3D_id != p.id) ++mismatched;
+      }
+    }
+    for (const auto& [id, im] : m.images)
+      for (const auto& q : im.points2D) with_point += q.point3D_id >= 0;
+    CHECK(mismatched == 0);
+    CHECK(with_point == track_total);
+    CHECK(track_total > 1000);
     const auto cams = colmap_frame_cameras<S>(m);
     REQUIRE(cams.size() == 90);
     for (int i = 0; i < 90; ++i) {

@@ -17,6 +17,12 @@
 //    the precision S are an error. A finite quaternion of (near) zero norm, an image referencing a missing camera, unknown camera models,
 //    wrong parameter counts, non-finite or non-positive intrinsics and
 //    duplicate ids are errors naming the file and the line / record.
+//  - 2D observations are kept: each image's POINTS2D[] (pixel xy, POINT3D_ID or
+//    -1) and each point's POINT2D_IDX per track element. The reader checks each
+//    record's form (a POINT3D_ID below -1 or a negative POINT2D_IDX is an error)
+//    but not the cross references between images and points: COLMAP's own
+//    models are consistent, and a caller that needs both sides (e.g.
+//    colmap_observations.hpp) looks ids up and skips what it cannot find.
 //  - colmap_intrinsics keeps fx, fy, cx, cy only: lens distortion parameters
 //    are ignored (orbitforge renders ideal pinhole cameras).
 //
@@ -52,12 +58,20 @@ struct ColmapCamera {
   std::vector<double> params;
 };
 
+// One keypoint of an image (POINTS2D[] element): pixel position in COLMAP's
+// convention (= orbitforge's) and the 3D point it was triangulated into.
+struct ColmapPoint2D {
+  Eigen::Vector2d xy = Eigen::Vector2d::Zero();
+  std::int64_t point3D_id = -1;  // -1: not part of any 3D point
+};
+
 struct ColmapImage {
   int id = 0;
   Eigen::Vector4d qvec = Eigen::Vector4d(1, 0, 0, 0);  // w, x, y, z; world-to-camera rotation
   Eigen::Vector3d tvec = Eigen::Vector3d::Zero();      // world-to-camera translation
   int camera_id = 0;
   std::string name;
+  std::vector<ColmapPoint2D> points2D;  // POINTS2D[], in file order (POINT2D_IDX = index)
 };
 
 struct ColmapPoint {
@@ -65,7 +79,8 @@ struct ColmapPoint {
   Eigen::Vector3d xyz = Eigen::Vector3d::Zero();
   std::array<std::uint8_t, 3> rgb{{0, 0, 0}};
   double error = 0;
-  std::vector<int> track_images;  // IMAGE_ID of each observation (TRACK[]), in file order
+  std::vector<int> track_images;     // IMAGE_ID of each observation (TRACK[]), in file order
+  std::vector<int> track_point2D;    // POINT2D_IDX of each observation, parallel to track_images
 };
 
 struct ColmapModel {
@@ -201,17 +216,22 @@ inline std::map<int, ColmapImage> parse_colmap_images_text(std::string_view text
     ensure(images.count(im.id) == 0, at, ": duplicate IMAGE_ID ", im.id);
 
     // Second line: POINTS2D[] as (X, Y, POINT3D_ID); may be empty or, at the
-    // very end of the file, missing. Checked for well-formedness, not stored.
+    // very end of the file, missing.
     std::string_view points;
     if (lines.next_line(points)) {
       const TextLocation pat = lines.location();
       const auto ptok = split_tokens(points);
       ensure(ptok.size() % 3 == 0, pat, ": POINTS2D line of image ", im.id, " has ", ptok.size(),
              " tokens, expected triples X Y POINT3D_ID");
+      im.points2D.reserve(ptok.size() / 3);
       for (std::size_t i = 0; i < ptok.size(); i += 3) {
-        parse_double_token(ptok[i], pat, "POINTS2D x");
-        parse_double_token(ptok[i + 1], pat, "POINTS2D y");
-        parse_int_token<std::int64_t>(ptok[i + 2], pat, "POINT3D_ID");
+        ColmapPoint2D q;
+        q.xy.x() = parse_double_token(ptok[i], pat, "POINTS2D x");
+        q.xy.y() = parse_double_token(ptok[i + 1], pat, "POINTS2D y");
+        q.point3D_id = parse_int_token<std::int64_t>(ptok[i + 2], pat, "POINT3D_ID");
+        ensure(q.point3D_id >= -1, pat, ": image ", im.id, ": POINTS2D ", i / 3, " has POINT3D_ID ", q.point3D_id,
+               " (expected -1 or an id >= 0)");
+        im.points2D.push_back(q);
       }
     }
     images.emplace(im.id, std::move(im));
@@ -238,9 +258,13 @@ inline std::vector<ColmapPoint> parse_colmap_points3D_text(std::string_view text
       p.rgb[k] = static_cast<std::uint8_t>(v);
     }
     p.error = parse_double_token(tok[7], at, "ERROR");
+    p.track_images.reserve((tok.size() - 8) / 2);
+    p.track_point2D.reserve((tok.size() - 8) / 2);
     for (std::size_t i = 8; i < tok.size(); i += 2) {
       p.track_images.push_back(parse_int_token<int>(tok[i], at, "track IMAGE_ID"));
-      parse_int_token<std::int64_t>(tok[i + 1], at, "track POINT2D_IDX");
+      const int idx = parse_int_token<int>(tok[i + 1], at, "track POINT2D_IDX");
+      ensure(idx >= 0, at, ": point ", p.id, ": track POINT2D_IDX ", idx, " is negative");
+      p.track_point2D.push_back(idx);
     }
     points.push_back(std::move(p));
   }
@@ -298,7 +322,16 @@ inline std::map<int, ColmapImage> parse_colmap_images_binary(std::string_view by
     ensure(!im.name.empty(), where.str(), ": image ", im.id, " has an empty name");
     const auto num_points = in.read<std::uint64_t>("POINTS2D count");
     in.check_count(num_points, 8 + 8 + 8, "POINTS2D");
-    in.skip(static_cast<std::size_t>(num_points) * 24, "POINTS2D");
+    im.points2D.resize(static_cast<std::size_t>(num_points));
+    for (std::size_t k = 0; k < im.points2D.size(); ++k) {
+      ColmapPoint2D& q = im.points2D[k];
+      q.xy.x() = in.read<double>("POINTS2D x");
+      q.xy.y() = in.read<double>("POINTS2D y");
+      // COLMAP writes "no 3D point" as the uint64 maximum, i.e. -1 as int64.
+      q.point3D_id = in.read<std::int64_t>("POINT3D_ID");
+      ensure(q.point3D_id >= -1, where.str(), ": image ", im.id, ": POINTS2D ", k, " has POINT3D_ID ", q.point3D_id,
+             " (expected -1 or an id >= 0)");
+    }
     detail::check_colmap_quaternion(im, where.str());
     ensure(images.count(im.id) == 0, where.str(), ": duplicate image id ", im.id);
     images.emplace(im.id, std::move(im));
@@ -327,12 +360,16 @@ inline std::vector<ColmapPoint> parse_colmap_points3D_binary(std::string_view by
     const auto track = in.read<std::uint64_t>("track length");
     in.check_count(track, 4 + 4, "track element");
     p.track_images.reserve(static_cast<std::size_t>(track));
+    p.track_point2D.reserve(static_cast<std::size_t>(track));
     for (std::uint64_t k = 0; k < track; ++k) {
       const auto image_id = in.read<std::uint32_t>("track image id");
-      in.read<std::uint32_t>("track point2D index");
+      const auto point2D_idx = in.read<std::uint32_t>("track point2D index");
       ensure(image_id <= std::uint32_t(std::numeric_limits<int>::max()), file_name, ": point record ", i,
              " (byte offset ", record_offset, "): track image id ", image_id, " is too large");
+      ensure(point2D_idx <= std::uint32_t(std::numeric_limits<int>::max()), file_name, ": point record ", i,
+             " (byte offset ", record_offset, "): track point2D index ", point2D_idx, " is too large");
       p.track_images.push_back(int(image_id));
+      p.track_point2D.push_back(int(point2D_idx));
     }
     points.push_back(std::move(p));
   }
