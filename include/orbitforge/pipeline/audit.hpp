@@ -104,6 +104,8 @@ inline const std::vector<Column>& columns() {
       {"normal_rule", "normal rule", "Orbit diagnostics", "/diagnostics/normal_rule", 0},
       {"source_span_deg", "source span (deg)", "Orbit diagnostics", "/diagnostics/source_span_deg", 1},
       {"camera_path", "cameras", "Cameras", "/cameras/path", 0},
+      {"orbit_check_ok", "orbit check passed", "Cameras", "/orbit_check/ok", 0},
+      {"speed_trend", "speed trend (2nd / 1st half)", "Cameras", "/orbit_check/trend_halves", 3},
       {"arc_user", "source arc, estimated (deg)", "Cameras", "/cameras/reference/source_arc_deg/user", 1},
       {"arc_reference", "source arc, reference (deg)", "Cameras", "/cameras/reference/source_arc_deg/reference", 1},
       {"focal_user", "focal, estimated (px)", "Cameras", "/cameras/reference/focal_px/user", 1},

@@ -130,6 +130,18 @@ inline std::string report_markdown(const nlohmann::json& r) {
          << " | " << num(at(sp, v, "loop_l1")) << " |\n";
     md << "\n";
   }
+  const auto& check = at(r, "orbit_check");
+  if (check.is_object()) {
+    if (at(check, "ok") == false) {
+      md << "## Warning: the source cameras are not an orbit\n\n";
+      for (const auto& w : at(check, "warnings")) md << "- " << num(w) << "\n";
+      md << "\nFrames flagged: " << num(at(check, "flagged_frames")) << ". Everything after the orbit fit (support "
+            "bins, completion request, G1's cameras) leans on it.\n\n";
+    } else {
+      md << "Orbit check: the source cameras fit a constant-speed orbit (speed trend " << num(at(check, "trend_halves"), 3)
+         << ", circle RMSE " << num(at(check, "circle_rmse"), 4) << " of the radius).\n\n";
+    }
+  }
   md << "## Orbit fitting diagnostics\n\n| | |\n|---|---|\n";
   if (r.contains("diagnostics") && r["diagnostics"].is_object())
     for (auto it = r["diagnostics"].begin(); it != r["diagnostics"].end(); ++it)

@@ -1,6 +1,9 @@
 #pragma once
 // Stage 1, orbit: the canonical orbit fitted to the source cameras, its support
-// bins and the completion layout -> orbit.json.
+// bins and the completion layout -> orbit.json. The cameras are checked against
+// the orbit the method assumes (geometry/orbit_check.hpp): a warning names the
+// frames and goes to the log and to orbit.json's "check", from where the
+// report takes it. Everything after the fit leans on it.
 #include <chrono>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -10,6 +13,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/geometry/orbit_check.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/pipeline/input_json.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
@@ -44,6 +48,8 @@ void stage_orbit(PipelineRun<Scalar>& run) {
     ensure(!in.images[std::size_t(idx)].empty(), "pipeline: source frame ", in.cameras[std::size_t(idx)].name,
            " has no image");
   }
+  const OrbitCheck check = check_orbit(run.source_cameras, run.fit);
+  for (const auto& w : check.warnings) run.log("orbit: warning: the cameras are not an orbit: " + w);
   std::vector<std::string> names;
   for (const auto& s : run.fit.source) names.push_back(s.name);
   run.layout = endpoint_window_layout(run.fit.support, names, p.layout);
@@ -56,13 +62,23 @@ void stage_orbit(PipelineRun<Scalar>& run) {
                                    {"circle_fit", int(op.circle_fit)},
                                    {"center", orbit_center_name(op.center)},
                                    {"anchor_stride", p.layout.anchor_stride},
-                                   {"placement", anchor_placement_name(p.layout.placement)}};
+                                   {"placement", anchor_placement_name(p.layout.placement)},
+                                   {"orbit_check", 1}};
   const std::string key = hex64(fnv1a(settings.dump(), input_hash(in)));
   run.keys["orbit"] = key;
   const std::vector<std::string> outputs = {"orbit.json"};
   if (run.stage_current("orbit", key, outputs)) return;
   nlohmann::json oj = orbit_json(run.fit, run.layout);
   oj["source_frames"] = source_frames_json(in);
+  oj["check"] = {{"ok", check.ok},
+                 {"warnings", check.warnings},
+                 {"flagged_frames", check.flagged_frames},
+                 {"median_step_deg", check.median_step_deg},
+                 {"trend_halves", check.trend_halves},
+                 {"trend_split", check.trend_split},
+                 {"circle_rmse", check.circle_rmse},
+                 {"height_std", check.height_std},
+                 {"lookat_error_deg", check.lookat_error_deg}};
   write_file_atomic((fs::path(run.out) / "orbit.json").string(), oj.dump(1) + "\n");
   finish_stage(run, "orbit", key, t0, settings, outputs);
 }

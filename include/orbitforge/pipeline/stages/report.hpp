@@ -194,6 +194,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"cameras", cameras_json(in, run.fit, estimate)},
                       {"coverage", coverage},
                       {"diagnostics", orbit.at("diagnostics")},
+                      {"orbit_check", orbit.value("check", nlohmann::json())},
                       {"quality", quality},
                       {"completion", completion}};
   if (p.deformable && p.static_proxy_diagnostics)
