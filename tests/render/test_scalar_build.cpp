@@ -95,7 +95,7 @@ TEST_CASE("scalar build backward matches finite differences", "[render][scalar][
   RasterWorkspace<double> ws;
   rasterize(bins, p, out, ws);
   RasterGradOutput<double> g;
-  rasterize_backward(bins, p, out, wc, nullptr, nullptr, s.size(), g, ws);
+  rasterize_vjp(bins, p, out, wc, nullptr, nullptr, s.size(), g, ws);
   double scale = 0;
   for (double x : g.splats.v_mean_x) scale = std::max(scale, std::abs(x));
   for (std::size_t i = 0; i < s.size(); ++i) {
