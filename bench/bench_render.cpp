@@ -158,7 +158,7 @@ void BM_RasterKernels(benchmark::State& state) {
   Imagef v_color(w, h, 3, 1.f), v_alpha(w, h, 1, 0.5f), v_depth(w, h, 1, 0.01f);
   bin_splats(splats, w, h, 16, bins);  // warm-up: the first frame allocates
   rasterize(bins, rp, out, ws);
-  rasterize_backward(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
+  rasterize_vjp(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
   double bin = 0, fwd = 0, bwd = 0;
   for (auto _ : state) {
     const double t0 = thread_cpu_ms();
@@ -166,7 +166,7 @@ void BM_RasterKernels(benchmark::State& state) {
     const double t1 = thread_cpu_ms();
     rasterize(bins, rp, out, ws);
     const double t2 = thread_cpu_ms();
-    rasterize_backward(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
+    rasterize_vjp(bins, rp, out, v_color, &v_alpha, &v_depth, splats.size(), grad, ws);
     const double t3 = thread_cpu_ms();
     bin += t1 - t0; fwd += t2 - t1; bwd += t3 - t2;
   }

@@ -67,6 +67,7 @@ int main(int argc, char** argv) {
   into.scales = strided(grads[0].sigma, sizeof(HostSplatGrad));
   into.opacities = strided(&grads[0].opacity, sizeof(HostSplatGrad));
   into.sh = strided(grads[0].sh_dc, sizeof(HostSplatGrad));
+  into.sh_coefficients = 1;  // the host keeps the DC term only
   Image<double> v_color(128, 128, 3, 1.0 / (128.0 * 128.0 * 3.0));
   renderer.backward(view, cam, v_color, into);
   const HostSplatGrad& g = grads[0];

@@ -4,7 +4,8 @@
 # installed package and the copied headers build and run the two vendoring
 # examples (examples/host_adaptor.cpp, examples/orbit_from_gl.cpp) and a
 # core-only program (FetchContent: that program); the README's C++ snippets are
-# compiled (and run, when they have a main) against the copied headers.
+# compiled (and run, when they have a main) against the copied headers; the
+# rendering examples are also built with ORBITFORGE_NO_SIMD and must agree.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 work=$(mktemp -d)
@@ -42,6 +43,26 @@ mkdir -p "$work/copied"
 wait
 run_all "$work/copied"
 
+# The scalar build (ORBITFORGE_NO_SIMD, core/config.hpp) of the two examples that
+# render and differentiate: they must build, run, and print what the SIMD build
+# printed (host_adaptor's gradients; quick_start's pixel and gradients, without
+# its timing).
+mkdir -p "$work/nosimd"
+"$cxx" "${flags[@]}" "$root/examples/quick_start.cpp" -o "$work/copied/quick_start" & pid1=$!
+"$cxx" "${flags[@]}" -DORBITFORGE_NO_SIMD "$root/examples/quick_start.cpp" -o "$work/nosimd/quick_start" & pid2=$!
+"$cxx" "${flags[@]}" -DORBITFORGE_NO_SIMD "$root/examples/host_adaptor.cpp" -o "$work/nosimd/host_adaptor" ||
+  { echo "check_consumer: host_adaptor does not build with ORBITFORGE_NO_SIMD"; exit 1; }
+wait $pid1 || { echo "check_consumer: quick_start does not build"; exit 1; }
+wait $pid2 || { echo "check_consumer: quick_start does not build with ORBITFORGE_NO_SIMD"; exit 1; }
+"$work/copied/host_adaptor" "$work/host_simd.png" >"$work/host_simd.txt"
+"$work/nosimd/host_adaptor" "$work/host_nosimd.png" >"$work/host_nosimd.txt"
+cmp -s "$work/host_simd.txt" "$work/host_nosimd.txt" ||
+  { echo "check_consumer: host_adaptor prints other gradients with ORBITFORGE_NO_SIMD:"; cat "$work"/host_*simd.txt; exit 1; }
+"$work/copied/quick_start" | sed 's/; [0-9.]* ms$//' >"$work/quick_simd.txt"
+"$work/nosimd/quick_start" | sed 's/; [0-9.]* ms$//' >"$work/quick_nosimd.txt"
+cmp -s "$work/quick_simd.txt" "$work/quick_nosimd.txt" ||
+  { echo "check_consumer: quick_start prints other values with ORBITFORGE_NO_SIMD:"; cat "$work"/quick_*simd.txt; exit 1; }
+
 # The README's ```cpp blocks, each a whole translation unit; the first is
 # examples/quick_start.cpp verbatim.
 python3 - "$root/README.md" "$work/snippets" "$root/examples/quick_start.cpp" <<'PY'
@@ -65,4 +86,5 @@ for src in "$work"/snippets/snippet*.cpp; do
   n=$((n + 1))
 done
 [ "$n" -ge 3 ] || { echo "check_consumer: expected at least 3 README snippets, found $n"; exit 1; }
-echo "check_consumer: find_package, FetchContent and copied headers build and run the vendoring examples; $n README snippets compile"
+echo "check_consumer: find_package, FetchContent and copied headers build and run the vendoring examples;" \
+  "quick_start and host_adaptor with ORBITFORGE_NO_SIMD print what the SIMD build prints; $n README snippets compile"

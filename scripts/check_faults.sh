@@ -12,19 +12,21 @@
 # 1. Builds full_pipeline and ply_tool and runs the tiny synthetic pipeline once
 #    (the reference; its final.ply is deterministic for a thread count).
 # 2. Damage: every kind of intermediate file (orbit.json, g0/checkpoint.bin,
-#    gmed0.ply, R0/0000.png, vhat.json, final.ply, each stages/*.json) of a copy of
-#    the reference, and g0/partial.bin of a run killed after its first partial
-#    checkpoint, is damaged three ways: cut to half, zeroed, random bytes (same
-#    size); the two checkpoints also a fourth: 256 bytes of 0xFF in the middle
-#    (which parse, as NaN parameters). Then the run is repeated. Pass: exit 0, the damaged file rewritten (it no
-#    longer holds the damaged bytes) and final.ply valid (ply_tool info); or a
-#    non-zero exit whose message names the file. A damaged partial.bin must also be
-#    reported and not resumed from. Whether final.ply came out identical to the
-#    reference is counted.
+#    gmed0.ply, R0/0000.png, vhat.json, vhat/0000.png, g1/checkpoint.bin,
+#    R1/0000.png, final.ply, each stages/*.json) of a copy of the reference, and
+#    g0/partial.bin of a run killed after its first partial checkpoint, is damaged
+#    three ways: cut to half, zeroed, random bytes (same size); the checkpoints also
+#    a fourth: 256 bytes of 0xFF in the middle (which parse, as NaN parameters).
+#    Then the run is repeated. Pass: exit 0, the damaged file rewritten (it no
+#    longer holds the damaged bytes) and final.ply byte-identical to the
+#    reference's; or an error exit (1 to 127) whose error line names the file. Only
+#    the run's own error line(s) count (from its last "full_pipeline: error:" or
+#    "stopped:" line on), not the log's progress lines; an exit by a signal (128 and
+#    above) fails. A damaged partial.bin must also be reported and not resumed from.
 # 3. Kills: K fresh runs are each killed with SIGKILL after T (k + 0.5) / K seconds
 #    (T: the reference's wall time), then run again. Pass: the rerun exits 0 with a
-#    valid final.ply (identical ones counted). Temporary files left by a kill are
-#    counted too.
+#    final.ply byte-identical to the reference's. Temporary files left by a kill
+#    are counted.
 #
 # Everything happens in its own mktemp folder, so several checks may run at once.
 set -euo pipefail
@@ -92,23 +94,41 @@ damage() {
   esac
 }
 
-# final_ok DIR: final.ply valid; counts it identical to the reference.
-final_ok() {
-  "$PLY_TOOL" info "$1/final.ply" >/dev/null 2>&1 || return 1
+# final_same DIR: final.ply valid and byte-identical to the reference's (a rerun
+# redoes the same deterministic work); counts the reruns compared.
+final_same() {
   checked=$((checked + 1))
-  if cmp -s "$1/final.ply" "$REF/final.ply"; then identical=$((identical + 1)); fi
+  "$PLY_TOOL" info "$1/final.ply" >/dev/null 2>&1 || return 1
+  cmp -s "$1/final.ply" "$REF/final.ply" || return 1
+  identical=$((identical + 1))
+}
+
+# error_lines LOG: the run's own error message, from its last error or stop line
+# to the end (the message may span lines); empty when it printed none.
+error_lines() {
+  local at
+  at=$(grep -an -E "^full_pipeline: (error|stopped):" "$1" | tail -1 | cut -d: -f1)
+  [ -n "$at" ] && tail -n "+$at" "$1"
   return 0
 }
 
 # judge NAME DIR REL LOG STATUS: the rules of step 2 for the damaged file REL of DIR.
 judge() {
   local name=$1 dir=$2 rel=$3 log=$4 status=$5
+  if [ "$status" -ge 128 ]; then
+    fail "$name: killed by signal $((status - 128)) (exit $status): $(tail -1 "$log" | short)"
+    return
+  fi
   if [ "$status" -ne 0 ]; then
-    if grep -aq "$(basename "$rel")" "$log"; then
-      echo "ok  $name: refused (exit $status): $(grep -a -m1 "$(basename "$rel")" "$log" | short)"
+    local err
+    err=$(error_lines "$log")
+    if [ -z "$err" ]; then
+      fail "$name: exit $status without an error line: $(tail -1 "$log" | short)"
+    elif grep -aqF "$rel" <<<"$err"; then
+      echo "ok  $name: refused (exit $status): $(grep -aF -m1 "$rel" <<<"$err" | short)"
       passes=$((passes + 1))
     else
-      fail "$name: exit $status without naming $(basename "$rel"): $(tail -1 "$log" | short)"
+      fail "$name: exit $status, its error does not name $rel: $(head -1 <<<"$err" | short)"
     fi
     return
   fi
@@ -116,28 +136,27 @@ judge() {
     fail "$name: exit 0 with the damaged $rel kept"
     return
   fi
-  if ! final_ok "$dir"; then
-    fail "$name: exit 0 but final.ply is not valid"
+  if ! final_same "$dir"; then
+    fail "$name: exit 0 but final.ply is not the reference's (invalid or different bytes)"
     return
   fi
-  local same="differs from the reference"
-  cmp -s "$dir/final.ply" "$REF/final.ply" && same="identical to the reference"
   local why
   why=$(grep -a -m1 -E "running again|not usable" "$log" | short || true)
-  echo "ok  $name: redone, final.ply $same${why:+ ($why)}"
+  echo "ok  $name: redone, final.ply identical to the reference${why:+ ($why)}"
   passes=$((passes + 1))
 }
 
 echo "== damaged files (cut to half, zeroed, random bytes; checkpoints also 0xFF in the middle)"
 td=$(now)
-files=(orbit.json g0/checkpoint.bin gmed0.ply R0/0000.png vhat.json final.ply)
+files=(orbit.json g0/checkpoint.bin gmed0.ply R0/0000.png vhat.json vhat/0000.png g1/checkpoint.bin R1/0000.png
+  final.ply)
 for s in "$REF"/stages/*.json; do files+=("stages/$(basename "$s")"); done
 n=0
 for rel in "${files[@]}"; do
   [ -f "$REF/$rel" ] || { fail "the reference has no $rel"; continue; }
   modes=(half zero random)
   # 0xFF over a stretch of a checkpoint parses (as NaN parameters) unless its checksum is checked.
-  [ "$rel" = g0/checkpoint.bin ] && modes+=(ff)
+  case "$rel" in */checkpoint.bin) modes+=(ff) ;; esac
   for mode in "${modes[@]}"; do
     n=$((n + 1))
     dir="$WORK/damage_$n"
@@ -201,14 +220,12 @@ for k in $(seq 0 $((KILLS - 1))); do
   leftovers=$((leftovers + temps))
   if [ "$status" -ne 0 ]; then
     fail "kill at ${at} s ($stage): the rerun exited $status: $(tail -1 "$dir.log" | short)"
-  elif ! final_ok "$dir"; then
-    fail "kill at ${at} s ($stage): final.ply is not valid after the rerun"
+  elif ! final_same "$dir"; then
+    fail "kill at ${at} s ($stage): after the rerun final.ply is not the reference's (invalid or different bytes)"
   else
-    same="differs from the reference"
-    cmp -s "$dir/final.ply" "$REF/final.ply" && same="identical to the reference"
     left=""
     [ "$temps" -gt 0 ] && left=", $temps temporary files left"
-    echo "ok  kill at ${at} s ($killed; last progress: ${stage:-none}): rerun exit 0, final.ply $same$left"
+    echo "ok  kill at ${at} s ($killed; last progress: ${stage:-none}): rerun exit 0, final.ply identical$left"
     passes=$((passes + 1))
   fi
   rm -rf "$dir"
@@ -216,5 +233,5 @@ done
 echo "kills: $(secs "$tk" "$(now)") s"
 
 echo "== check_faults: $passes passed, $fails failed; final.ply identical to the reference in $identical of $checked" \
-  "reruns; $leftovers temporary files left by kills; $(secs "$start" "$(now)") s in all"
+  "finished reruns; $leftovers temporary files left by kills; $(secs "$start" "$(now)") s in all"
 [ "$fails" -eq 0 ]

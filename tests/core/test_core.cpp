@@ -153,3 +153,64 @@ TEMPLATE_TEST_CASE("simd::exp2_nonpositive is within 2 ulp of 2^x, the same on e
   CHECK(std::isnormal(tiny));
   CHECK(double(tiny) == Approx(std::exp2(floor)));
 }
+
+namespace {
+// One expression over the whole operator vocabulary of core/simd.hpp, written
+// once for any batch type: the scalar batch must compile it (the scalar build
+// runs the same kernels) and give each native lane's value.
+template <class B>
+B every_operator(B x, B y) {
+  using M = simd::mask_t<B>;
+  B acc = x;
+  acc += y;
+  acc -= B(0.25) * x;
+  acc *= y;
+  acc /= (simd::abs(y) + B(1));
+  acc = +acc - (-x) + x * y - x / (simd::abs(x) + B(2));
+  const M lt = x < y, le = x <= y, gt = x > y, ge = x >= y, eq = x == x, ne = x != y;
+  M m = ((lt & le) | (gt ^ ge)) & eq;
+  m = m | ((ne && !lt) || ~gt);
+  m = m ^ ((lt == le) != (gt == ge));
+  acc = simd::select(m, acc, simd::fma(x, y, acc));
+  return acc + simd::min(x, y) * simd::max(x, y) + simd::sqrt(simd::abs(x)) + simd::floor(x) + simd::ceil(y) +
+         simd::exp(B(0.1) * y) + simd::log(simd::abs(x) + B(1)) + simd::round_nearest(B(3) * x);
+}
+}  // namespace
+
+TEMPLATE_TEST_CASE("simd::scalar_batch has the batch operators and agrees with each native lane", "[core][simd]",
+                   float, double) {
+  using T = TestType;
+  using B = simd::native_batch<T>;
+  using S = simd::scalar_batch<T>;
+  constexpr std::size_t N = B::size;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-3, 3);
+  int differing_lanes = 0;
+  for (int rep = 0; rep < 200; ++rep) {
+    T xs[N], ys[N], out[N];
+    for (std::size_t l = 0; l < N; ++l) {
+      xs[l] = T(u(rng));
+      ys[l] = l % 3 == 0 ? xs[l] : T(u(rng));  // some equal pairs for == and !=
+    }
+    every_operator(B::load_unaligned(xs), B::load_unaligned(ys)).store_unaligned(out);
+    for (std::size_t l = 0; l < N; ++l) {
+      const T s = every_operator(S(xs[l]), S(ys[l])).v;
+      INFO("x " << xs[l] << " y " << ys[l]);
+      // exp and log are xsimd's on the vector path and std's on the scalar one.
+      REQUIRE(double(s) == Approx(double(out[l])).epsilon(std::is_same<T, float>::value ? 1e-5 : 1e-12).margin(1e-6));
+      if (xs[l] != ys[l]) ++differing_lanes;
+    }
+  }
+  CHECK(differing_lanes > 0);
+  // The masks' truth tables.
+  using SM = simd::mask_t<S>;
+  const SM t(true), f(false);
+  CHECK((t ^ f).v);
+  CHECK_FALSE((t ^ t).v);
+  CHECK((!f).v);
+  CHECK((t && t).v);
+  CHECK_FALSE((t && f).v);
+  CHECK((f || t).v);
+  CHECK((t == t).v);
+  CHECK((t != f).v);
+}

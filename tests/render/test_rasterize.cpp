@@ -7,7 +7,7 @@
 
 #include "orbitforge/splat/bin.hpp"
 #include "orbitforge/splat/rasterize.hpp"
-#include "orbitforge/splat/rasterize_backward.hpp"
+#include "orbitforge/splat/rasterize_vjp.hpp"
 #include "render/reference_renderer.hpp"
 
 using namespace orbitforge;
@@ -293,7 +293,7 @@ TEMPLATE_TEST_CASE("tiles without Gaussians: the background, and their share of 
   std::uniform_real_distribution<double> u(-1, 1);
   for (auto& v : v_color.data) v = S(u(rng));
   RasterGradOutput<S> grad;
-  rasterize_backward(bins, p, fwd, v_color, nullptr, nullptr, s.size(), grad, ws);
+  rasterize_vjp(bins, p, fwd, v_color, nullptr, nullptr, s.size(), grad, ws);
   for (int c = 0; c < 3; ++c) {
     double direct = 0;
     for (int y = 0; y < h; ++y)

@@ -202,7 +202,7 @@ TEST_CASE("renderer backward matches finite differences of the scene parameters"
     struct Group { const char* name; std::vector<double>* x; const std::vector<double>* v; };
     Group groups[] = {{"means", &scene.means, &g.means},
                       {"rotations", &scene.rotations, &g.rotations},
-                      {"log_scales", &scene.log_scales, &g.log_scales},
+                      {"log_scales", &scene.log_scales, &g.scales},
                       {"opacity_logits", &scene.opacity_logits, &g.opacity_logits},
                       {"sh", &scene.sh, &g.sh}};
     int skipped = 0, checked = 0;

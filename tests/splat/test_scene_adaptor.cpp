@@ -4,9 +4,12 @@
 // library's own SoA scene holding the same Gaussians.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
+#include <type_traits>
+#include <vector>
 
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/splat/scene_adaptor.hpp"
@@ -131,8 +134,8 @@ TEST_CASE("an array-of-structs double adaptor renders and differentiates like th
   double worst = 0, largest = 0;
   for (std::size_t i = 0; i < host.size(); ++i)
     for (int c = 0; c < 3; ++c) {
-      const double d_scale = g_host.log_scales[3 * i + c];  // the field holds d/d(what scale() returned)
-      const double expect = g_lib.log_scales[3 * i + c] / host[i].sigma[c];
+      const double d_scale = g_host.scales[3 * i + c];  // the field holds d/d(what scale() returned)
+      const double expect = g_lib.scales[3 * i + c] / host[i].sigma[c];
       worst = std::max(worst, std::abs(d_scale - expect));
       largest = std::max(largest, std::abs(expect));
       REQUIRE(g_host.means[3 * i + c] == Approx(g_lib.means[3 * i + c]).margin(1e-12));
@@ -173,6 +176,7 @@ TEST_CASE("backward writes into the host's own arrays, in the host's parametrisa
   view.opacities = strided(&hg[0].opacity, stride);
   view.opacity_logits = strided(&hg[0].logit, stride);
   view.sh = strided(hg[0].rgb_dc, stride);
+  view.sh_coefficients = 1;
   Renderer<double> r;
   r.render(adaptor, cam);
   r.backward(adaptor, cam, v, view);
@@ -183,8 +187,8 @@ TEST_CASE("backward writes into the host's own arrays, in the host's parametrisa
     const double o = host[i].opacity;
     for (int a = 0; a < 3; ++a) {
       REQUIRE(h.xyz[a] == Approx(g.means[3 * i + a]).margin(1e-12));
-      REQUIRE(h.log_sigma[a] == Approx(g.log_scales[3 * i + a]).margin(1e-12));
-      REQUIRE(h.sigma[a] == Approx(g.log_scales[3 * i + a] / host[i].sigma[a]).margin(1e-10));
+      REQUIRE(h.log_sigma[a] == Approx(g.scales[3 * i + a]).margin(1e-12));
+      REQUIRE(h.sigma[a] == Approx(g.scales[3 * i + a] / host[i].sigma[a]).margin(1e-10));
       REQUIRE(h.rgb_dc[a] == Approx(g.sh[3 * i + a]).margin(1e-12));
       largest_sigma = std::max(largest_sigma, std::abs(h.sigma[a]));
     }
@@ -228,4 +232,87 @@ TEST_CASE("backward writes into the host's own arrays, in the host's parametrisa
   SceneGradView<double> small = view;
   small.size = host.size() - 1;
   REQUIRE_THROWS_WITH(r.backward(adaptor, cam, v, small), Catch::Contains("gradient view is for 299 Gaussians"));
+}
+
+namespace {
+// Struct-of-arrays Gaussians with standard deviations (ScaleMode::activated) in
+// precision S, SH degree 1.
+template <class S>
+struct ActivatedScene {
+  using scalar_type = S;
+  static constexpr ScaleMode scale_mode = ScaleMode::activated;
+  std::vector<S> means, quats, sigmas, logits, coefficients;
+  std::size_t size() const { return logits.size(); }
+  int sh_degree() const { return 1; }
+  void mean(std::size_t i, S out[3]) const { std::copy_n(&means[3 * i], 3, out); }
+  void rotation(std::size_t i, S out[4]) const { std::copy_n(&quats[4 * i], 4, out); }
+  void scale(std::size_t i, S out[3]) const { std::copy_n(&sigmas[3 * i], 3, out); }
+  S opacity_logit(std::size_t i) const { return logits[i]; }
+  S sh(std::size_t i, int k, int c) const { return coefficients[(4 * i + std::size_t(k)) * 3 + std::size_t(c)]; }
+  template <class T>
+  ActivatedScene<T> cast() const {
+    auto to = [](const std::vector<S>& v) { return std::vector<T>(v.begin(), v.end()); };
+    return {to(means), to(quats), to(sigmas), to(logits), to(coefficients)};
+  }
+};
+}  // namespace
+
+TEMPLATE_TEST_CASE("the activated scale gradient is d loss / d sigma (finite differences)", "[splat][adaptor][grad]",
+                   float, double) {
+  using S = TestType;
+  std::mt19937 rng(41);
+  std::uniform_real_distribution<double> u(-1, 1), pos(0, 1);
+  ActivatedScene<double> sd;
+  const std::size_t n = 60;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) sd.means.push_back(0.7 * u(rng) + (a == 2 ? 4 : 0));
+    for (int a = 0; a < 4; ++a) sd.quats.push_back(u(rng));
+    for (int a = 0; a < 3; ++a) sd.sigmas.push_back(0.05 + 0.12 * pos(rng));
+    sd.logits.push_back(1.5 * u(rng));
+    for (int k = 0; k < 12; ++k) sd.coefficients.push_back(0.5 * u(rng));
+  }
+  Camera<double> cam_d;
+  cam_d.intrinsics = {60, 60, 32, 24, 64, 48};
+  Image<double> v_d(64, 48, 3);
+  for (double& x : v_d.data) x = u(rng);
+  auto loss = [&](const ActivatedScene<double>& s) {  // <v, colour>, in double
+    Renderer<double> r;
+    const Image<double>& c = r.render(s, cam_d).color;
+    double l = 0;
+    for (std::size_t k = 0; k < c.data.size(); ++k) l += v_d.data[k] * c.data[k];
+    return l;
+  };
+
+  // The analytic gradient in precision S.
+  const ActivatedScene<S> s = sd.cast<S>();
+  Camera<S> cam;
+  cam.intrinsics = {S(60), S(60), S(32), S(24), 64, 48};
+  Image<S> v(64, 48, 3);
+  for (std::size_t k = 0; k < v.data.size(); ++k) v.data[k] = S(v_d.data[k]);
+  Renderer<S> r;
+  r.render(s, cam);
+  const GaussianSceneGrad<S>& g = r.backward(s, cam, v);
+  REQUIRE(g.scale_mode == ScaleMode::activated);
+  REQUIRE(g.scales.size() == 3 * n);
+  double largest = 0;
+  for (S x : g.scales) largest = std::max(largest, std::abs(double(x)));
+  REQUIRE(largest > 1e-2);
+
+  // Central differences in double on every sigma with a gradient worth checking.
+  const double rel = std::is_same<S, float>::value ? 2e-3 : 1e-6;
+  int checked = 0;
+  for (std::size_t j = 0; j < 3 * n; ++j) {
+    if (std::abs(double(g.scales[j])) < 0.05 * largest) continue;
+    const double h = 1e-6, x0 = sd.sigmas[j];
+    sd.sigmas[j] = x0 + h;
+    const double lp = loss(sd);
+    sd.sigmas[j] = x0 - h;
+    const double lm = loss(sd);
+    sd.sigmas[j] = x0;
+    const double fd = (lp - lm) / (2 * h);
+    INFO("sigma " << j << ": analytic " << g.scales[j] << ", finite differences " << fd);
+    CHECK(std::abs(double(g.scales[j]) - fd) <= rel * (largest + std::abs(fd)));
+    ++checked;
+  }
+  REQUIRE(checked >= 10);
 }

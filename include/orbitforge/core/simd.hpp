@@ -10,7 +10,9 @@
 //
 // Vocabulary (B a batch type, M = mask_t<B>):
 //   B::size, B(value) broadcast, B::load_unaligned(p), b.store_unaligned(p),
-//   + - * / and unary -, comparisons < <= > >= giving M, masks combine with & | ~,
+//   + - * / (and += -= *= /=), unary + and -, comparisons < <= > >= == != giving M,
+//   masks combine with & | ^ ~ (and && || !, == !=) as xsimd::batch_bool does (not
+//   &= |= ^=: xsimd 8.1 declares them const and they do not compile),
 //   fma(x, y, z) = x*y+z, exp, log, exp2_nonpositive, min, max, abs, sqrt, ceil, floor,
 //   select(m, a, b),
 //   hadd(b) (sum of lanes; xsimd 8.1 has hadd, not reduce_add), any(m), all(m),
@@ -46,7 +48,13 @@ struct scalar_mask {
   scalar_mask(bool b) : v(b) {}
   friend scalar_mask operator&(scalar_mask a, scalar_mask b) { return a.v && b.v; }
   friend scalar_mask operator|(scalar_mask a, scalar_mask b) { return a.v || b.v; }
+  friend scalar_mask operator^(scalar_mask a, scalar_mask b) { return a.v != b.v; }
   friend scalar_mask operator~(scalar_mask a) { return !a.v; }
+  friend scalar_mask operator!(scalar_mask a) { return !a.v; }
+  friend scalar_mask operator&&(scalar_mask a, scalar_mask b) { return a.v && b.v; }
+  friend scalar_mask operator||(scalar_mask a, scalar_mask b) { return a.v || b.v; }
+  friend scalar_mask operator==(scalar_mask a, scalar_mask b) { return a.v == b.v; }
+  friend scalar_mask operator!=(scalar_mask a, scalar_mask b) { return a.v != b.v; }
 };
 
 template <class T>
@@ -64,12 +72,17 @@ struct scalar_batch {
   friend scalar_batch operator*(scalar_batch a, scalar_batch b) { return a.v * b.v; }
   friend scalar_batch operator/(scalar_batch a, scalar_batch b) { return a.v / b.v; }
   friend scalar_batch operator-(scalar_batch a) { return -a.v; }
+  friend scalar_batch operator+(scalar_batch a) { return a; }
   friend scalar_mask<T> operator<(scalar_batch a, scalar_batch b) { return a.v < b.v; }
   friend scalar_mask<T> operator<=(scalar_batch a, scalar_batch b) { return a.v <= b.v; }
   friend scalar_mask<T> operator>(scalar_batch a, scalar_batch b) { return a.v > b.v; }
   friend scalar_mask<T> operator>=(scalar_batch a, scalar_batch b) { return a.v >= b.v; }
+  friend scalar_mask<T> operator==(scalar_batch a, scalar_batch b) { return a.v == b.v; }
+  friend scalar_mask<T> operator!=(scalar_batch a, scalar_batch b) { return a.v != b.v; }
   scalar_batch& operator+=(scalar_batch b) { v += b.v; return *this; }
+  scalar_batch& operator-=(scalar_batch b) { v -= b.v; return *this; }
   scalar_batch& operator*=(scalar_batch b) { v *= b.v; return *this; }
+  scalar_batch& operator/=(scalar_batch b) { v /= b.v; return *this; }
 };
 
 template <class T> inline scalar_batch<T> fma(scalar_batch<T> x, scalar_batch<T> y, scalar_batch<T> z) { return std::fma(x.v, y.v, z.v); }

@@ -85,6 +85,7 @@ void project_scene_vjp_into(const Scene& scene, const Camera<typename Scene::sca
   const int k_count = sh_coefficient_count(degree);
   ensure(fwd.size() == n, "project_scene_vjp: forward result has ", fwd.size(), " Gaussians, scene has ", n);
   ensure(out.size == n, "project_scene_vjp: the gradient view is for ", out.size, " Gaussians, the scene has ", n);
+  check_grad_view(out);
   for (const auto* v : {&v_in.v_mean_x, &v_in.v_mean_y, &v_in.v_conic_a, &v_in.v_conic_b, &v_in.v_conic_c,
                         &v_in.v_opacity, &v_in.v_color_r, &v_in.v_color_g, &v_in.v_color_b, &v_in.v_depth})
     ensure(v->size() == n, "project_scene_vjp: a ProjectedSplatsGrad array has ", v->size(), " entries, expected ",
@@ -93,8 +94,12 @@ void project_scene_vjp_into(const Scene& scene, const Camera<typename Scene::sca
   want.mean = !freeze.means;
   want.cov3 = !(freeze.rotations && freeze.scales);
   want.sh = !(freeze.sh_dc && freeze.sh_rest);
+  // Within the view's extent: the adaptor's coefficients, then zeros for those
+  // the host holds beyond them.
+  const int extent = out.sh ? out.sh_coefficients : 0;
   want.sh_first = freeze.sh_dc ? 1 : 0;
-  want.sh_end = freeze.sh_rest ? 1 : k_count;
+  want.sh_end = std::min(freeze.sh_rest ? 1 : k_count, extent);
+  want.sh_zero_end = freeze.sh_rest ? want.sh_end : std::max(want.sh_end, extent);
 
   const std::size_t chunk = std::max<std::size_t>(1, params.chunk);
   const std::size_t chunks = (n + chunk - 1) / chunk;
@@ -134,10 +139,11 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
 }
 
 // Gradients w.r.t. the scene parameters as the adaptor exposes them, into a
-// GaussianSceneGrad (log_scales holds d/d log s for ScaleMode::log adaptors and
-// d/d s for activated ones). Non-frozen groups of `out` are overwritten (zero for
-// culled Gaussians); frozen groups are never written (see Freeze), only sized.
-// screen_grad_norm and screen_grad_ndc_norm are always written.
+// GaussianSceneGrad (scales holds d/d log s for ScaleMode::log adaptors and d/d s
+// for activated ones; out.scale_mode records which). Non-frozen groups of `out`
+// are overwritten (zero for culled Gaussians); frozen groups are never written
+// (see Freeze), only sized. screen_grad_norm and screen_grad_ndc_norm are always
+// written.
 template <class Scene>
 void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_type>& camera,
                        const ProjectionParams& params, const ProjectedSplats<typename Scene::scalar_type>& fwd,
@@ -157,9 +163,10 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
       v.assign(size, Scalar(0));
   };
   out.sh_degree = degree;
+  out.scale_mode = Scene::scale_mode;
   prepare(out.means, 3 * n, freeze.means);
   prepare(out.rotations, 4 * n, freeze.rotations);
-  prepare(out.log_scales, 3 * n, freeze.scales);
+  prepare(out.scales, 3 * n, freeze.scales);
   prepare(out.opacity_logits, n, freeze.opacities);
   prepare(out.sh, sh_size, freeze.sh_dc && freeze.sh_rest);
   if (out.sh.size() != sh_size) out.sh.assign(sh_size, Scalar(0));
@@ -172,10 +179,12 @@ void project_scene_vjp(const Scene& scene, const Camera<typename Scene::scalar_t
   if (!freeze.means) view.means = strided(out.means.data(), 3 * s1);
   if (!freeze.rotations) view.rotations = strided(out.rotations.data(), 4 * s1);
   if (!freeze.scales)
-    (Scene::scale_mode == ScaleMode::log ? view.log_scales : view.scales) = strided(out.log_scales.data(), 3 * s1);
+    (Scene::scale_mode == ScaleMode::log ? view.log_scales : view.scales) = strided(out.scales.data(), 3 * s1);
   if (!freeze.opacities) view.opacity_logits = strided(out.opacity_logits.data(), s1);
-  if (!(freeze.sh_dc && freeze.sh_rest))
-    view.sh = strided(out.sh.data(), std::ptrdiff_t(sh_size / std::max<std::size_t>(1, n)) * s1);
+  if (!(freeze.sh_dc && freeze.sh_rest)) {
+    view.sh = strided(out.sh.data(), 3 * std::ptrdiff_t(sh_coefficient_count(degree)) * s1);
+    view.sh_coefficients = sh_coefficient_count(degree);
+  }
   view.screen_grad_norm = strided(out.screen_grad_norm.data(), s1);
   view.screen_grad_ndc_norm = strided(out.screen_grad_ndc_norm.data(), s1);
   detail::project_scene_vjp_into(scene, camera, params, fwd, v_in, view, freeze, threads);

@@ -41,6 +41,7 @@ struct GradLanes {
 struct GradWanted {
   bool mean, cov3, sh;
   int sh_first, sh_end;  // coefficients written: [sh_first, sh_end)
+  int sh_zero_end;       // and zeros in [sh_end, sh_zero_end): the host holds more than the adaptor
 };
 
 // The GCC 12 false positive of project_lanes.hpp (xsimd's AVX-512 kernels).
@@ -268,6 +269,10 @@ inline void project_lanes_vjp(const Scene& scene, const ProjectionCamera<typenam
       for (int k = want.sh_first; k < want.sh_end; ++k) {
         Scalar* dst = reinterpret_cast<Scalar*>(base + std::ptrdiff_t(k) * out.sh_coefficient_stride_bytes);
         for (int c = 0; c < 3; ++c) dst[c] = row[GG::kSh + 3 * k + c];
+      }
+      for (int k = want.sh_end; k < want.sh_zero_end; ++k) {
+        Scalar* dst = reinterpret_cast<Scalar*>(base + std::ptrdiff_t(k) * out.sh_coefficient_stride_bytes);
+        for (int c = 0; c < 3; ++c) dst[c] = Scalar(0);
       }
     }
     if (out.screen_grad_norm) *out.screen_grad_norm.at(i) = row[GG::kScreen];

@@ -94,7 +94,7 @@ struct TileLanes {
   }
 };
 
-// Caller-owned scratch for rasterize / rasterize_backward, reused across frames.
+// Caller-owned scratch for rasterize / rasterize_vjp, reused across frames.
 template <class Scalar>
 struct RasterWorkspace {
   TileLanes<Scalar> lanes;

@@ -1,7 +1,7 @@
 #pragma once
 // The whole renderer: project (EWA + SH colour, splat/project.hpp) -> bin (depth
 // sort + tile lists) -> rasterize, and the backward pass in reverse:
-// rasterize_backward -> project_scene_vjp.
+// rasterize_vjp -> project_scene_vjp.
 //
 //   Renderer<float> r(params);
 //   const RenderOutput<float>& img = r.render(SceneView<float>(scene), camera);
@@ -10,7 +10,10 @@
 //
 // A Renderer owns every buffer of a frame and reuses them, so rendering frames of
 // one size allocates nothing after the first. backward() differentiates the last
-// render() and must be given the same scene and camera.
+// render() and must be given the same scene and camera. It is a method named
+// backward, not a free *_vjp function like its stages, because it replays the
+// state the last render() recorded (projection, bins, saved transmittance)
+// rather than computing from its arguments.
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -26,7 +29,7 @@
 #include "orbitforge/splat/project.hpp"
 #include "orbitforge/splat/projected.hpp"
 #include "orbitforge/splat/rasterize.hpp"
-#include "orbitforge/splat/rasterize_backward.hpp"
+#include "orbitforge/splat/rasterize_vjp.hpp"
 #include "orbitforge/splat/scene_grad.hpp"
 
 namespace orbitforge {
@@ -220,7 +223,7 @@ class Renderer {
            "Renderer::backward: camera differs from the last render()");
     const auto t0 = clock::now();
     const int threads = resolve_threads(params_.threads, "RenderParams::threads");
-    rasterize_backward(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
+    rasterize_vjp(bins_, raster_params(threads), static_cast<const RasterOutput<Scalar>&>(out_), v_color,
                        v_alpha, v_depth, splats_.size(), raster_grad_, ws_);
     out_.frame.backward_raster_ms = ms(t0, clock::now());
     return threads;

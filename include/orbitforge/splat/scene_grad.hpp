@@ -1,14 +1,16 @@
 #pragma once
 // Gradients of a loss w.r.t. the parameters of a Gaussian scene, as
-// project_scene_vjp (splat/project.hpp) writes them. Same shapes and order as
-// the GaussianScene arrays, so generic code can pair them by name:
+// project_scene_vjp (splat/project.hpp) writes them: one array per accessor of
+// the scene adaptor (splat/scene_adaptor.hpp), named after it and in the order
+// it returns values (the GaussianScene arrays' order):
 //
 //   means          [N][3]
 //   rotations      [N][4]   w.r.t. the quaternion as stored (through the normalisation)
-//   log_scales     [N][3]   w.r.t. the scale parameter the scene adaptor exposes:
-//                           log-scales for ScaleMode::log (GaussianScene, SceneView),
-//                           activated scales for ScaleMode::activated (DeformedSceneView:
-//                           then this is the gradient w.r.t. ds, see its base_gradients)
+//   scales         [N][3]   w.r.t. what the adaptor's scale() returns (scale_mode says
+//                           which): the log standard deviation for ScaleMode::log
+//                           (GaussianScene through SceneView), the standard deviation
+//                           for ScaleMode::activated (DeformedSceneView, where it is the
+//                           gradient w.r.t. the offset ds; see its base_gradients)
 //   opacity_logits [N]
 //   sh             [N][K][3]
 //
@@ -22,6 +24,7 @@
 #include <vector>
 
 #include "orbitforge/splat/gaussians.hpp"
+#include "orbitforge/splat/scene_adaptor.hpp"
 
 namespace orbitforge {
 
@@ -42,9 +45,10 @@ struct GaussianSceneGrad {
   using scalar_type = Scalar;
 
   int sh_degree = 0;
+  ScaleMode scale_mode = ScaleMode::log;  // the parametrisation `scales` is w.r.t.
   std::vector<Scalar> means;
   std::vector<Scalar> rotations;
-  std::vector<Scalar> log_scales;
+  std::vector<Scalar> scales;
   std::vector<Scalar> opacity_logits;
   std::vector<Scalar> sh;
   std::vector<Scalar> screen_grad_norm;
@@ -54,11 +58,12 @@ struct GaussianSceneGrad {
   int sh_coefficients() const { return sh_coefficient_count(sh_degree); }
 
   // All arrays sized for n Gaussians of the given degree and set to zero.
-  void assign_zero(std::size_t n, int degree) {
+  void assign_zero(std::size_t n, int degree, ScaleMode mode = ScaleMode::log) {
     sh_degree = degree;
+    scale_mode = mode;
     means.assign(3 * n, Scalar(0));
     rotations.assign(4 * n, Scalar(0));
-    log_scales.assign(3 * n, Scalar(0));
+    scales.assign(3 * n, Scalar(0));
     opacity_logits.assign(n, Scalar(0));
     sh.assign(n * std::size_t(sh_coefficient_count(degree)) * 3, Scalar(0));
     screen_grad_norm.assign(n, Scalar(0));

@@ -72,7 +72,7 @@ class SceneView {
 //           exp(log s + ds)  (ScaleOffset::log),  opacity and SH of the base.
 // dx [N][3], dq [N][4], ds [N][3] are caller-owned arrays; a null pointer means zero.
 // The VJP w.r.t. this adaptor gives v_dx = grad.means, v_dq = grad.rotations and
-// the activated-scale gradient in grad.log_scales (scale_offset_gradients() turns
+// the activated-scale gradient in grad.scales (scale_offset_gradients() turns
 // it into v_ds); base_gradients() chains to the base parameters.
 template <class Scalar>
 class DeformedSceneView {
@@ -112,7 +112,10 @@ class DeformedSceneView {
   // (frozen groups never sized) are skipped.
   void base_gradients(const GaussianSceneGrad<Scalar>& view_grad, GaussianSceneGrad<Scalar>& base_grad) const {
     const std::size_t n = size();
+    ensure(view_grad.scale_mode == ScaleMode::activated,
+           "DeformedSceneView::base_gradients: the gradients are not w.r.t. this view's activated scales");
     if (&base_grad != &view_grad) base_grad = view_grad;
+    base_grad.scale_mode = ScaleMode::log;
     if (base_grad.rotations.size() == 4 * n) {
       for (std::size_t i = 0; i < n; ++i) {
         const Scalar* q = &b_.rotations[4 * i];
@@ -123,11 +126,11 @@ class DeformedSceneView {
         for (int a = 0; a < 4; ++a) v[a] = (v[a] - q[a] * inv * dot) * inv;
       }
     }
-    if (base_grad.log_scales.size() == 3 * n)
+    if (base_grad.scales.size() == 3 * n)
       for (std::size_t j = 0; j < 3 * n; ++j) {
         // d s' / d log s = exp(log s), times exp(ds) for relative offsets (= s').
         const Scalar d = (mode_ == ScaleOffset::log && ds_) ? ds_[j] : Scalar(0);
-        base_grad.log_scales[j] *= std::exp(b_.log_scales[j] + d);
+        base_grad.scales[j] *= std::exp(b_.log_scales[j] + d);
       }
   }
 
@@ -135,12 +138,14 @@ class DeformedSceneView {
   // (activated) scales: v_ds = v_s' (additive) or v_s' s' (log). [3 x N].
   void scale_offset_gradients(const GaussianSceneGrad<Scalar>& view_grad, Scalar* v_ds) const {
     const std::size_t n = size();
-    ensure(view_grad.log_scales.size() == 3 * n, "DeformedSceneView: scale gradients for ",
-           view_grad.log_scales.size() / 3, " Gaussians, the view has ", n);
+    ensure(view_grad.scale_mode == ScaleMode::activated,
+           "DeformedSceneView::scale_offset_gradients: the gradients are not w.r.t. this view's activated scales");
+    ensure(view_grad.scales.size() == 3 * n, "DeformedSceneView: scale gradients for ",
+           view_grad.scales.size() / 3, " Gaussians, the view has ", n);
     for (std::size_t j = 0; j < 3 * n; ++j)
       v_ds[j] = mode_ == ScaleOffset::log
-                    ? view_grad.log_scales[j] * std::exp(b_.log_scales[j] + (ds_ ? ds_[j] : Scalar(0)))
-                    : view_grad.log_scales[j];
+                    ? view_grad.scales[j] * std::exp(b_.log_scales[j] + (ds_ ? ds_[j] : Scalar(0)))
+                    : view_grad.scales[j];
   }
 
  private:

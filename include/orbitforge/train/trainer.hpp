@@ -381,7 +381,7 @@ class Trainer {
     // Adam on the Gaussians.
     step_group(g_means_, scene_.means, grad->means);
     step_group(g_rot_, scene_.rotations, grad->rotations);
-    step_group(g_scale_, scene_.log_scales, grad->log_scales);
+    step_group(g_scale_, scene_.log_scales, grad->scales);
     step_group(g_opacity_, scene_.opacity_logits, grad->opacity_logits);
     step_sh(grad->sh);
     last_.adam_ms = lap();

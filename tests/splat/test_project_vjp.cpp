@@ -236,7 +236,7 @@ TEST_CASE("project_scene_vjp matches finite differences of every output (SceneVi
       project_scene_vjp(SceneView<double>(s), cam, ProjectionParams{}, fwd, w, g, Freeze{}, 1);
       check_group("means", g.means, fd_of(f, s.means.data(), s.means.size()));
       check_group("rotations", g.rotations, fd_of(f, s.rotations.data(), s.rotations.size()));
-      check_group("log_scales", g.log_scales, fd_of(f, s.log_scales.data(), s.log_scales.size()));
+      check_group("log_scales", g.scales, fd_of(f, s.log_scales.data(), s.log_scales.size()));
       check_group("opacity_logits", g.opacity_logits, fd_of(f, s.opacity_logits.data(), s.opacity_logits.size()));
       check_group("sh", g.sh, fd_of(f, s.sh.data(), s.sh.size()));
       // Screen-space norms for densification.
@@ -276,7 +276,7 @@ TEST_CASE("project_scene_vjp: Gaussians beyond the x/z, y/z clamp", "[splat][pro
   project_scene_vjp(SceneView<double>(s), cam, ProjectionParams{}, fwd, w, g);
   check_group("means", g.means, fd_of(f, s.means.data(), s.means.size()));
   check_group("rotations", g.rotations, fd_of(f, s.rotations.data(), s.rotations.size()));
-  check_group("log_scales", g.log_scales, fd_of(f, s.log_scales.data(), s.log_scales.size()));
+  check_group("log_scales", g.scales, fd_of(f, s.log_scales.data(), s.log_scales.size()));
 }
 
 TEST_CASE("project_scene_vjp through DeformedSceneView: offsets, negative scales, base parameters",
@@ -305,19 +305,19 @@ TEST_CASE("project_scene_vjp through DeformedSceneView: offsets, negative scales
     // W.r.t. what the adaptor exposes = the offsets.
     check_group("v_dx", g.means, fd_of(f, dx.data(), dx.size()));
     check_group("v_dq", g.rotations, fd_of(f, dq.data(), dq.size()));
-    check_group("v_ds", g.log_scales, fd_of(f, ds.data(), ds.size()));
+    check_group("v_ds", g.scales, fd_of(f, ds.data(), ds.size()));
     // Chained to the base scene.
     GaussianSceneGrad<double> gb;
     view().base_gradients(g, gb);
     check_group("base means", gb.means, fd_of(f, base.means.data(), base.means.size()));
     check_group("base rotations", gb.rotations, fd_of(f, base.rotations.data(), base.rotations.size()));
-    check_group("base log_scales", gb.log_scales, fd_of(f, base.log_scales.data(), base.log_scales.size()));
+    check_group("base log_scales", gb.scales, fd_of(f, base.log_scales.data(), base.log_scales.size()));
     check_group("base opacity", gb.opacity_logits, fd_of(f, base.opacity_logits.data(), base.opacity_logits.size()));
     check_group("base sh", gb.sh, fd_of(f, base.sh.data(), base.sh.size()));
     // In place gives the same.
     view().base_gradients(g, g);
     REQUIRE(g.rotations == gb.rotations);
-    REQUIRE(g.log_scales == gb.log_scales);
+    REQUIRE(g.scales == gb.scales);
   }
 }
 
@@ -345,7 +345,7 @@ TEST_CASE("project_scene_vjp through DeformedSceneView with relative scale offse
   check_group("v_ds (relative)", v_ds, fd_of(f, ds.data(), ds.size()));
   GaussianSceneGrad<double> gb;
   view().base_gradients(g, gb);
-  check_group("base log_scales (relative)", gb.log_scales, fd_of(f, base.log_scales.data(), base.log_scales.size()));
+  check_group("base log_scales (relative)", gb.scales, fd_of(f, base.log_scales.data(), base.log_scales.size()));
   check_group("base means (relative)", gb.means, fd_of(f, base.means.data(), base.means.size()));
 }
 
@@ -370,7 +370,7 @@ TEST_CASE("freeze flags: frozen groups untouched, the others unchanged", "[splat
     GaussianSceneGrad<double> g;
     g.assign_zero(s.size(), 3);
     const double sentinel = 12345.0;
-    for (auto* v : {&g.means, &g.rotations, &g.log_scales, &g.opacity_logits, &g.sh})
+    for (auto* v : {&g.means, &g.rotations, &g.scales, &g.opacity_logits, &g.sh})
       std::fill(v->begin(), v->end(), sentinel);
     project_scene_vjp(SceneView<double>(s), cam, ProjectionParams{}, fwd, w, g, fr, 2);
     auto check = [&](const std::vector<double>& got, const std::vector<double>& ref, bool frozen) {
@@ -379,7 +379,7 @@ TEST_CASE("freeze flags: frozen groups untouched, the others unchanged", "[splat
     };
     check(g.means, full.means, fr.means);
     check(g.rotations, full.rotations, fr.rotations);
-    check(g.log_scales, full.log_scales, fr.scales);
+    check(g.scales, full.scales, fr.scales);
     check(g.opacity_logits, full.opacity_logits, fr.opacities);
     for (std::size_t i = 0; i < s.size(); ++i)
       for (int j = 0; j < 3 * K; ++j) {
@@ -413,12 +413,12 @@ TEST_CASE("culled Gaussians get zero gradients", "[splat][project][grad]") {
   REQUIRE(st.visible == 4);
   GaussianSceneGrad<double> g;
   g.assign_zero(s.size(), 2);
-  for (auto* v : {&g.means, &g.rotations, &g.log_scales, &g.opacity_logits, &g.sh}) std::fill(v->begin(), v->end(), 5.0);
+  for (auto* v : {&g.means, &g.rotations, &g.scales, &g.opacity_logits, &g.sh}) std::fill(v->begin(), v->end(), 5.0);
   project_scene_vjp(SceneView<double>(s), cam, ProjectionParams{}, fwd, w, g, Freeze{}, 1);
   for (int i = 1; i <= 4; ++i) {
     for (int a = 0; a < 3; ++a) REQUIRE(g.means[3 * i + a] == 0.0);
     for (int a = 0; a < 4; ++a) REQUIRE(g.rotations[4 * i + a] == 0.0);
-    for (int a = 0; a < 3; ++a) REQUIRE(g.log_scales[3 * i + a] == 0.0);
+    for (int a = 0; a < 3; ++a) REQUIRE(g.scales[3 * i + a] == 0.0);
     REQUIRE(g.opacity_logits[i] == 0.0);
     for (int j = 0; j < 27; ++j) REQUIRE(g.sh[27 * i + j] == 0.0);
     REQUIRE(g.screen_grad_norm[i] == 0.0);
@@ -459,7 +459,7 @@ TEST_CASE("float backward agrees with double", "[splat][project][grad]") {
   };
   close(gf.means, g.means);
   close(gf.rotations, g.rotations);
-  close(gf.log_scales, g.log_scales);
+  close(gf.scales, g.scales);
   close(gf.opacity_logits, g.opacity_logits);
   close(gf.sh, g.sh);
 }

@@ -85,7 +85,7 @@ GaussianSceneGrad<S> reference(const GaussianScene<S>& s, const Camera<S>& camer
     project_gaussian_vjp(cam, p, v, Freeze{}, v_mean, v_quat, v_scale, &v_logit, &g.sh[std::size_t(kk) * i]);
     for (int a = 0; a < 3; ++a) g.means[3 * i + a] = v_mean[a];
     for (int a = 0; a < 4; ++a) g.rotations[4 * i + a] = v_quat[a];
-    for (int a = 0; a < 3; ++a) g.log_scales[3 * i + a] = v_scale[a] * p.scale[a];
+    for (int a = 0; a < 3; ++a) g.scales[3 * i + a] = v_scale[a] * p.scale[a];
     g.opacity_logits[i] = v_logit;
     g.screen_grad_norm[i] = std::sqrt(v.v_mean_x * v.v_mean_x + v.v_mean_y * v.v_mean_y);
     const S nx = v.v_mean_x * S(0.5) * S(camera.intrinsics.width), ny = v.v_mean_y * S(0.5) * S(camera.intrinsics.height);
@@ -100,7 +100,7 @@ std::vector<std::vector<double>> groups(const GaussianSceneGrad<A>& g, std::size
   auto take = [&](const std::vector<A>& v, std::size_t per) {
     return std::vector<double>(v.begin() + std::ptrdiff_t(per * i), v.begin() + std::ptrdiff_t(per * (i + 1)));
   };
-  return {take(g.means, 3), take(g.rotations, 4), take(g.log_scales, 3), take(g.opacity_logits, 1), take(g.sh, kk),
+  return {take(g.means, 3), take(g.rotations, 4), take(g.scales, 3), take(g.opacity_logits, 1), take(g.sh, kk),
           take(g.screen_grad_norm, 1), take(g.screen_grad_ndc_norm, 1)};
 }
 

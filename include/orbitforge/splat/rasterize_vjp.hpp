@@ -1,5 +1,5 @@
 #pragma once
-// Backward pass of rasterize(): from dL/d(colour) [H][W][3] and optionally
+// The VJP of rasterize() (its backward pass): from dL/d(colour) [H][W][3] and optionally
 // dL/d(alpha) [H][W][1] (alpha = 1 - final T) and dL/d(depth) [H][W][1], the
 // gradients w.r.t. every ProjectedSplats field (and the background colour).
 //
@@ -72,7 +72,7 @@ enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGr
 
 // Depth: v_depth is given (training has no depth term: its loads and sums are skipped).
 template <class B, bool Depth, class Scalar>
-void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
+void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L,
                              const RasterParams<Scalar>& params, const RasterOutput<Scalar>& fwd,
                              const Image<Scalar>& v_color, const Image<Scalar>* v_alpha, const Image<Scalar>* v_depth,
                              Scalar* scratch, Scalar* pair_grad, std::int32_t& live_rank_end,
@@ -240,25 +240,25 @@ void rasterize_backward_tile(int t, const BinWorkspace<Scalar>& bins, const Tile
 // bins, params and fwd must be those of the forward pass being differentiated.
 // v_alpha and v_depth may be null (no loss term on them).
 template <class B, class Scalar>
-void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
+void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
                              const RasterOutput<Scalar>& fwd, const Image<Scalar>& v_color,
                              const detail::identity_t<Image<Scalar>>* v_alpha,
                              const detail::identity_t<Image<Scalar>>* v_depth, std::size_t n_splats,
                              RasterGradOutput<Scalar>& out, RasterWorkspace<Scalar>& ws) {
-  static_assert(std::is_same<typename B::value_type, Scalar>::value, "rasterize_backward: batch of the wrong precision");
+  static_assert(std::is_same<typename B::value_type, Scalar>::value, "rasterize_vjp: batch of the wrong precision");
   const auto t0 = std::chrono::steady_clock::now();
   const TileGrid& g = bins.grid;
   ensure(fwd.color.width == g.width && fwd.color.height == g.height && fwd.replay.size() == g.pixel_count(),
-         "rasterize_backward: the forward output does not match the bins (", fwd.color.width, "x", fwd.color.height,
+         "rasterize_vjp: the forward output does not match the bins (", fwd.color.width, "x", fwd.color.height,
          " vs ", g.width, "x", g.height, ")");
   ensure(v_color.width == g.width && v_color.height == g.height && v_color.channels == 3,
-         "rasterize_backward: v_color is ", v_color.width, "x", v_color.height, "x", v_color.channels, ", expected ",
+         "rasterize_vjp: v_color is ", v_color.width, "x", v_color.height, "x", v_color.channels, ", expected ",
          g.width, "x", g.height, "x3");
   for (const Image<Scalar>* v : {v_alpha, v_depth})
     ensure(!v || (v->width == g.width && v->height == g.height && v->channels == 1),
-           "rasterize_backward: v_alpha / v_depth must be ", g.width, "x", g.height, "x1");
+           "rasterize_vjp: v_alpha / v_depth must be ", g.width, "x", g.height, "x1");
   for (std::size_t r = 0; r < bins.order.size(); ++r)
-    ensure(std::size_t(bins.order[r]) < n_splats, "rasterize_backward: n_splats (", n_splats, ") is smaller than the binned set");
+    ensure(std::size_t(bins.order[r]) < n_splats, "rasterize_vjp: n_splats (", n_splats, ") is smaller than the binned set");
 
   ws.lanes.build(g.tile_size, int(B::size));
   const int threads = resolve_threads(params.threads);
@@ -266,14 +266,14 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
   ws.worker_scratch.resize(std::size_t(threads));
   for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
   check_memory_request(std::uint64_t(bins.pairs()) * detail::kGradFields * sizeof(Scalar),
-                       "rasterize_backward: the per-entry gradients of ", bins.pairs(), " tile-list entries");
+                       "rasterize_vjp: the per-entry gradients of ", bins.pairs(), " tile-list entries");
   ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
   ws.tile_background.resize(3 * std::size_t(g.tile_count()));
 
   auto run = [&](auto depth) {
     parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
-      detail::rasterize_backward_tile<B, decltype(depth)::value>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha,
+      detail::rasterize_vjp_tile<B, decltype(depth)::value>(int(t), bins, ws.lanes, params, fwd, v_color, v_alpha,
                                                                  v_depth, ws.worker_scratch[std::size_t(w)].data(),
                                                                  ws.pair_grad.data(), ws.live_rank_end[t],
                                                                  ws.tile_background.data() + 3 * t);
@@ -318,12 +318,12 @@ void rasterize_backward_with(const BinWorkspace<Scalar>& bins, const RasterParam
 }
 
 template <class Scalar>
-void rasterize_backward(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
+void rasterize_vjp(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>& params,
                         const RasterOutput<Scalar>& fwd, const Image<Scalar>& v_color,
                         const detail::identity_t<Image<Scalar>>* v_alpha,
                         const detail::identity_t<Image<Scalar>>* v_depth, std::size_t n_splats, RasterGradOutput<Scalar>& out,
                         RasterWorkspace<Scalar>& ws) {
-  rasterize_backward_with<simd::native_batch<Scalar>>(bins, params, fwd, v_color, v_alpha, v_depth, n_splats, out, ws);
+  rasterize_vjp_with<simd::native_batch<Scalar>>(bins, params, fwd, v_color, v_alpha, v_depth, n_splats, out, ws);
 }
 
 }  // namespace orbitforge

@@ -1,4 +1,4 @@
-// rasterize_backward against central finite differences (double) of
+// rasterize_vjp against central finite differences (double) of
 // L = sum w_c colour + sum w_a alpha + sum w_d depth, w.r.t. every ProjectedSplats field.
 #include <catch2/catch.hpp>
 
@@ -6,7 +6,7 @@
 
 #include "orbitforge/splat/bin.hpp"
 #include "orbitforge/splat/rasterize.hpp"
-#include "orbitforge/splat/rasterize_backward.hpp"
+#include "orbitforge/splat/rasterize_vjp.hpp"
 #include "render/reference_renderer.hpp"
 
 using namespace orbitforge;
@@ -54,7 +54,7 @@ RasterGradOutput<double> analytic(const ProjectedSplats<double>& s, int w, int h
   RasterWorkspace<double> ws;
   rasterize_with<B>(bins, p, out, ws);
   RasterGradOutput<double> g;
-  rasterize_backward_with<B>(bins, p, out, lw.wc, alpha ? &lw.wa : nullptr, depth ? &lw.wd : nullptr, s.size(), g, ws);
+  rasterize_vjp_with<B>(bins, p, out, lw.wc, alpha ? &lw.wa : nullptr, depth ? &lw.wd : nullptr, s.size(), g, ws);
   return g;
 }
 
@@ -125,7 +125,7 @@ void check_fd(const ProjectedSplats<double>& s, int w, int h, int tile, bool alp
 
 }  // namespace
 
-TEST_CASE("rasterize_backward matches finite differences", "[render][grad]") {
+TEST_CASE("rasterize_vjp matches finite differences", "[render][grad]") {
   RandomSplatOptions o;
   o.opacity_max = 0.9;  // stay off the 0.99 clamp
   o.sigma_min = 1.5;
@@ -137,7 +137,7 @@ TEST_CASE("rasterize_backward matches finite differences", "[render][grad]") {
   SECTION("colour + alpha + depth, 16 px tiles") { check_fd(s, 26, 21, 16, true, true, 2); }
 }
 
-TEST_CASE("rasterize_backward with early-stopped pixels matches finite differences", "[render][grad]") {
+TEST_CASE("rasterize_vjp with early-stopped pixels matches finite differences", "[render][grad]") {
   RandomSplatOptions o;
   o.opacity_min = 0.6;
   o.opacity_max = 0.95;
@@ -158,7 +158,7 @@ TEST_CASE("rasterize_backward with early-stopped pixels matches finite differenc
   check_fd(s, 20, 18, 16, true, true, 3);
 }
 
-TEST_CASE("rasterize_backward skips entries past a tile's last replay", "[render][grad]") {
+TEST_CASE("rasterize_vjp skips entries past a tile's last replay", "[render][grad]") {
   // Opaque Gaussians stop some tiles early, so a Gaussian can be listed past
   // every replay in one tile (its slot there is never written) and replayed in
   // another: the per-Gaussian sum must skip only the former.
@@ -197,9 +197,9 @@ TEST_CASE("rasterize_backward skips entries past a tile's last replay", "[render
   const LossWeights lw = random_weights(W, H, 4, true, true);
   RasterGradOutput<double> fresh, reused;
   RasterWorkspace<double> ws_fresh;
-  rasterize_backward(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), fresh, ws_fresh);
+  rasterize_vjp(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), fresh, ws_fresh);
   ws.pair_grad.assign(bins.pairs() * 10, 1e6);
-  rasterize_backward(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), reused, ws);
+  rasterize_vjp(bins, RasterParams<double>{}, out, lw.wc, &lw.wa, &lw.wd, s.size(), reused, ws);
   for (int f = 0; f < 10; ++f) CHECK(*grad_field(fresh.splats, f) == *grad_field(reused.splats, f));
   check_fd(s, W, H, tile, true, true, 4);
 }
@@ -397,7 +397,7 @@ TEST_CASE("backward in float agrees with double", "[render][grad]") {
   RasterParams<float> pf;
   rasterize(bins, pf, out, ws);
   RasterGradOutput<float> gf;
-  rasterize_backward(bins, pf, out, wcf, nullptr, nullptr, sf.size(), gf, ws);
+  rasterize_vjp(bins, pf, out, wcf, nullptr, nullptr, sf.size(), gf, ws);
   for (std::size_t i = 0; i < sd.size(); ++i) {
     CHECK(gf.splats.v_opacity[i] == Approx(gd.splats.v_opacity[i]).margin(1e-3).epsilon(1e-3));
     CHECK(gf.splats.v_mean_x[i] == Approx(gd.splats.v_mean_x[i]).margin(1e-3).epsilon(1e-3));
