@@ -92,7 +92,8 @@ void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames
         "--camera-model must be SIMPLE_PINHOLE or PINHOLE, got '" + in.camera_model + "'");
   usage(!frames_set || in.recorded(), "--frames needs a recorded input (--video, --images, --colmap, ...)");
   const std::string& c = flags.params.completion;
-  usage(!completion_set || !in.estimate_cameras() || !in.reference.empty() || (c != "oracle" && c != "perturbed"),
+  usage(!completion_set || !in.estimate_cameras() || !in.reference.empty() ||
+            (c != "oracle" && c != "perturbed" && c != "perturbed-geometric"),
         "--completion " + c + " needs recorded cameras for the gap frames, and with " +
             (in.video.empty() ? "--images" : "--video") +
             " only the source frames get cameras (COLMAP sees nothing else); use --completion external (the "

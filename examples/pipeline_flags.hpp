@@ -25,7 +25,7 @@ inline const char* kPipelineFlagsUsage =
     "  --frames A-B                source video frames (1-based, default 1-33)\n"
     "  --width W --height H        working size of the frames (default 512 x 512; paper: the frames' own)\n"
     "  --holdout-every K           withhold every K-th source frame from every reconstruction (0 = none)\n"
-    "  --completion oracle|perturbed|external|none\n"
+    "  --completion oracle|perturbed|perturbed-geometric|external|none\n"
     "  --iters N --iters-g1 N      iterations of G0 and G1\n"
     "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b\n"
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
@@ -101,7 +101,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--completion") {
     p.completion = a.value();
     if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
-        p.completion != "perturbed")
+        p.completion != "perturbed" && p.completion != "perturbed-geometric")
       throw UsageError(program + ": --completion must be " + completion_provider_names() + ", got '" +
                        p.completion + "'");
   } else if (flag == "--iters") p.iters_g0 = integer(1);

@@ -7,7 +7,7 @@
 
 using namespace orbitforge;
 
-namespace {
+namespace camera_alignment_test {
 
 template <class S>
 std::vector<Camera<S>> ring_cameras(int n, double arc_deg, double radius) {
@@ -21,7 +21,9 @@ std::vector<Camera<S>> ring_cameras(int n, double arc_deg, double radius) {
   return cams;
 }
 
-}  // namespace
+}  // namespace camera_alignment_test
+
+using camera_alignment_test::ring_cameras;
 
 TEMPLATE_TEST_CASE("align_camera_centres recovers a similarity and reports no residual", "[geometry][alignment]",
                    float, double) {

@@ -239,7 +239,7 @@ TEST_CASE("pipeline: no held-out frame reaches G1, the paper-data G1 or the boun
           "[pipeline][honest]") {
   const fs::path& ref = oracle_run();
   const auto& in = tiny_input_data();
-  for (const char* provider : {"oracle", "perturbed", "none", "external"}) {
+  for (const char* provider : {"oracle", "perturbed", "perturbed-geometric", "none", "external"}) {
     INFO(provider);
     fs::path dir = ref;
     PipelineParams p = oracle_params();
@@ -260,13 +260,26 @@ TEST_CASE("pipeline: no held-out frame reaches G1, the paper-data G1 or the boun
     }
     PipelineRun<float> state;
     const auto r = run_pipeline(in, p, dir.string(), nullptr, &state);
-    // The held-out frames: the gap's held-out recorded frames and the withheld source frames.
-    std::vector<std::string> held;
-    for (int i : gap_frames(in, state.fit).heldout) held.push_back(in.cameras[std::size_t(i)].name);
-    REQUIRE(held.size() >= 20);
-    for (const auto& n : r.at("frames").at("withheld")) held.push_back(n.get<std::string>());
+    // The held-out frames, from frame numbers alone (not from the library's gap
+    // selection): every odd-numbered frame after the source, and every 8th frame
+    // of the source range. Checked by name and by the hash of their pixels.
+    std::vector<std::string> held, held_hashes;
+    for (std::size_t i = 0; i < in.cameras.size(); ++i) {
+      const int number = int(i) + 1;
+      const bool after_source = int(i) > in.source_last && number % 2 == 1;
+      const bool withheld = int(i) >= in.source_first && int(i) <= in.source_last && (number - in.source_first) % 8 == 0;
+      if (!after_source && !withheld) continue;
+      held.push_back(in.cameras[i].name);
+      const auto& img = in.images[i].data;
+      held_hashes.push_back(hex64(fnv1a(img.data(), img.size() * sizeof(float))));
+    }
+    REQUIRE(held.size() >= 24);
     REQUIRE(r.at("frames").at("withheld").size() == 4);
-    std::vector<std::string> lists = {"vhat.json", "g1/frames.json", "g1_paper/frames.json", "bound/frames.json"};
+    for (const auto& n : r.at("frames").at("withheld"))
+      CHECK(std::find(held.begin(), held.end(), n.get<std::string>()) != held.end());
+    (void)state;
+    std::vector<std::string> lists = {"vhat.json", "g0/frames.json", "g1/frames.json", "g1_paper/frames.json",
+                                      "bound/frames.json"};
     for (const auto& list : lists) {
       if (!fs::exists(dir / list)) {
         CHECK(std::string(provider) == "none");  // no second reconstruction to train
@@ -275,7 +288,10 @@ TEST_CASE("pipeline: no held-out frame reaches G1, the paper-data G1 or the boun
       const auto j = parse_file(dir / list);
       std::size_t n = 0;
       for (const auto& f : j.at("frames")) {
-        const std::string origin = f.is_string() ? f.get<std::string>() : f.at("origin").get<std::string>();
+        const std::string origin = f.contains("origin") ? f.at("origin").get<std::string>() : f.at("name").get<std::string>();
+        if (f.contains("image_hash"))
+          CHECK(std::find(held_hashes.begin(), held_hashes.end(), f.at("image_hash").get<std::string>()) ==
+                held_hashes.end());
         ++n;
         // "source 012.png", "recorded 046.png", "perturbed recorded 046.png", "R0 view 3",
         // "completed 0016.png" (a synthetic index, not a recorded frame).

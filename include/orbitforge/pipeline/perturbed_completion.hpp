@@ -15,7 +15,12 @@
 //   time jitter    the frame's camera turned about the orbit axis by a normal
 //                  angle of jitter_deg standard deviation: the frame shows a view
 //                  slightly off the one it claims, as a clip whose motion runs
-//                  unevenly does.
+//                  unevenly does;
+//   camera error   (camera_error_deg > 0; the "perturbed-geometric" provider sets
+//                  1) the frame's camera turned about a random axis through the
+//                  orbit's look-at point by an angle drawn from [e, 2e]: a video
+//                  model that drifts off the requested cameras, so the frame
+//                  shows another view than the one it is trained at.
 // All draws come from `seed`; the strengths go into the provider's summary.
 #include <algorithm>
 #include <cmath>
@@ -33,6 +38,7 @@ struct PerturbParams {
   double warp_px = 1.5;
   double blur_px = 0.8;
   double jitter_deg = 0.5;
+  double camera_error_deg = 0;
   unsigned seed = 1;
 };
 
@@ -101,16 +107,32 @@ Camera<Scalar> turn_about_orbit(const Camera<Scalar>& cam, const OrbitFit<Scalar
   return out;
 }
 
+// The camera turned by `deg` about `axis` through `pivot`: it keeps its distance
+// to the pivot and its view of it, from another direction.
+template <class Scalar>
+Camera<Scalar> turn_about_point(const Camera<Scalar>& cam, const Eigen::Matrix<Scalar, 3, 1>& pivot,
+                                const Eigen::Matrix<Scalar, 3, 1>& axis, double deg) {
+  const Eigen::Matrix<Scalar, 3, 3> Rw =
+      Eigen::AngleAxis<Scalar>(Scalar(deg * Constants<double>::pi() / 180.0), axis.normalized()).toRotationMatrix();
+  Camera<Scalar> out = cam;
+  out.R = cam.R * Rw.transpose();
+  out.t = -out.R * (pivot + Rw * (cam.center() - pivot));
+  return out;
+}
+
 }  // namespace perturb_detail
 
 template <class Scalar>
 class PerturbedOracleCompletion : public OracleCompletion<Scalar> {
  public:
-  explicit PerturbedOracleCompletion(PerturbParams p = {}) : p_(p) {}
-  std::string name() const override { return "perturbed"; }
+  explicit PerturbedOracleCompletion(PerturbParams p = {}, std::string name = "perturbed")
+      : p_(p), name_(std::move(name)) {}
+  std::string name() const override { return name_; }
   std::string state_key(const CompletionContext<Scalar>&) const override {
-    return "perturbed " + std::to_string(p_.color_drift) + " " + std::to_string(p_.warp_px) + " " +
-           std::to_string(p_.blur_px) + " " + std::to_string(p_.jitter_deg) + " " + std::to_string(p_.seed);
+    std::string k = "perturbed " + std::to_string(p_.color_drift) + " " + std::to_string(p_.warp_px) + " " +
+                    std::to_string(p_.blur_px) + " " + std::to_string(p_.jitter_deg) + " " + std::to_string(p_.seed);
+    if (p_.camera_error_deg > 0) k += " camera " + std::to_string(p_.camera_error_deg);
+    return k;
   }
 
   CompletionResult<Scalar> complete(const CompletionContext<Scalar>& ctx) override {
@@ -136,12 +158,18 @@ class PerturbedOracleCompletion : public OracleCompletion<Scalar> {
       const double ax = phase(rng), ay = phase(rng);
       f.image = gaussian_blur(warp(f.image, p_.warp_px * px, ax, ay), p_.blur_px * px);
       f.camera = turn_about_orbit(f.camera, fit, p_.jitter_deg * normal(rng));
+      if (p_.camera_error_deg > 0) {
+        const Eigen::Matrix<Scalar, 3, 1> axis(Scalar(normal(rng)), Scalar(normal(rng)), Scalar(normal(rng)));
+        const double deg = p_.camera_error_deg * (1 + std::uniform_real_distribution<double>(0, 1)(rng));
+        f.camera = turn_about_point(f.camera, fit.orbit.look_at, axis, deg);
+      }
       f.origin = "perturbed " + f.origin;
     }
     r.summary["perturbation"] = {{"color_drift", p_.color_drift},
                                  {"warp_px_at_512", p_.warp_px},
                                  {"blur_px_at_512", p_.blur_px},
                                  {"jitter_deg", p_.jitter_deg},
+                                 {"camera_error_deg", p_.camera_error_deg},
                                  {"seed", p_.seed}};
     r.message += " (perturbed: colour drift " + std::to_string(p_.color_drift) + ", warp " +
                  std::to_string(p_.warp_px) + " px, blur " + std::to_string(p_.blur_px) + " px, jitter " +
@@ -151,6 +179,7 @@ class PerturbedOracleCompletion : public OracleCompletion<Scalar> {
 
  private:
   PerturbParams p_;
+  std::string name_;
 };
 
 }  // namespace orbitforge

@@ -12,9 +12,11 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
+#include "orbitforge/core/hash.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/deform/median_baker.hpp"
 #include "orbitforge/io/atomic_file.hpp"
@@ -25,6 +27,18 @@
 #include "orbitforge/train/trainer.hpp"
 
 namespace orbitforge {
+
+// A stage's training set as a file (<stage>/frames.json): each frame's name and
+// the hash of the pixels it trained on, so a check can tell that no held-out
+// image reached training by its content, not only by its name.
+template <class Scalar>
+void write_frame_list(const std::string& path, const std::vector<TrainFrame<Scalar>>& frames) {
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& f : frames)
+    list.push_back({{"name", f.name},
+                    {"image_hash", hex64(fnv1a(f.image.data.data(), f.image.data.size() * sizeof(Scalar)))}});
+  write_file_atomic(path, nlohmann::json({{"frames", list}}).dump(1) + "\n");
+}
 
 namespace reconstruction_detail {
 namespace fs = std::filesystem;

@@ -1,7 +1,8 @@
 #pragma once
 // Stage 2, g0: the deformable reconstruction of the source frames at their
 // estimated cameras, its MedianGS bake and R0, the bake rendered along the
-// canonical orbit -> g0/checkpoint.bin, gmed0.ply, R0/NNNN.png.
+// canonical orbit -> g0/frames.json (its training set), g0/checkpoint.bin,
+// gmed0.ply, R0/NNNN.png.
 #include <chrono>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -45,10 +46,12 @@ void stage_g0(PipelineRun<Scalar>& run) {
                                    {"threads", p.threads}};
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("orbit"))));
   run.keys["g0"] = key;
-  std::vector<std::string> outputs = {"g0/checkpoint.bin", "gmed0.ply"};
+  std::vector<std::string> outputs = {"g0/frames.json", "g0/checkpoint.bin", "gmed0.ply"};
   for (const auto& f : orbit_view_files(run, "R0")) outputs.push_back(f);
   if (run.stage_current("g0", key, outputs)) return;
   const std::vector<TrainFrame<Scalar>> frames = g0_frames(run);
+  fs::create_directories(fs::path(run.out) / "g0");
+  write_frame_list((fs::path(run.out) / "g0" / "frames.json").string(), frames);
   const GaussianScene<Scalar> gmed0 = reconstruct_and_bake(run, frames, initial_scene(run, frames),
                                                            run.train_params(p.iters_g0, p.deformable),
                                                            (fs::path(run.out) / "g0").string(), key, "G0");

@@ -60,17 +60,6 @@ void add_source_frames(const PipelineRun<Scalar>& run, std::vector<TrainFrame<Sc
   }
 }
 
-inline void write_frame_list(const std::string& path, const std::vector<std::string>& names) {
-  write_file_atomic(path, nlohmann::json({{"frames", names}}).dump(1) + "\n");
-}
-
-template <class Scalar>
-std::vector<std::string> names_of(const std::vector<TrainFrame<Scalar>>& frames) {
-  std::vector<std::string> n;
-  for (const auto& f : frames) n.push_back(f.name);
-  return n;
-}
-
 // Trains a second reconstruction on `frames` (initialised as G1 is) into `dir`
 // and returns its bake.
 template <class Scalar>
@@ -157,7 +146,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
   } else {
     const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
     fs::create_directories(out / "g1");
-    g1_detail::write_frame_list((out / "g1" / "frames.json").string(), g1_detail::names_of(frames));
+    write_frame_list((out / "g1" / "frames.json").string(), frames);
     final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1");
   }
   write_ply((out / "final.ply").string(), final_scene);
@@ -183,7 +172,7 @@ void stage_g1_paper(PipelineRun<Scalar>& run) {
   if (run.stage_current("g1_paper", key, outputs)) return;
   const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), G1Data::paper);
   fs::create_directories(out / "g1_paper");
-  g1_detail::write_frame_list((out / "g1_paper" / "frames.json").string(), g1_detail::names_of(frames));
+  write_frame_list((out / "g1_paper" / "frames.json").string(), frames);
   const GaussianScene<Scalar> scene =
       g1_detail::train_second(run, frames, true, (out / "g1_paper").string(), key, "G1 paper");
   write_ply((out / "g1_paper" / "final.ply").string(), scene);
@@ -229,7 +218,7 @@ void stage_bound(PipelineRun<Scalar>& run) {
   if (!same_as_g1) outputs.insert(outputs.begin(), "bound/checkpoint.bin");
   if (run.stage_current("bound", key, outputs)) return;
   fs::create_directories(out / "bound");
-  g1_detail::write_frame_list((out / "bound" / "frames.json").string(), g1_detail::names_of(frames));
+  write_frame_list((out / "bound" / "frames.json").string(), frames);
   if (same_as_g1) run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
   const GaussianScene<Scalar> scene =
       same_as_g1 ? read_ply<Scalar>((out / "final.ply").string())
