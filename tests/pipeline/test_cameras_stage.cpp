@@ -17,6 +17,7 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/pipeline/external_tools.hpp"
 #include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/focal_search.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 #include "support/data.hpp"
 
@@ -122,6 +123,58 @@ TEST_CASE("cameras stage: ffmpeg and colmap commands are argument vectors", "[pi
   CHECK(after(mp.argv, "--Mapper.init_min_tri_angle") == "4");
   p.threads = 0;
   CHECK(!contains(colmap_mapper_command("d", "i", "o", p).argv, "--Mapper.num_threads"));
+}
+
+TEST_CASE("cameras stage: a known focal length is held by a camera-only model; the orbit score", "[pipeline][cameras]") {
+  CameraStageParams p;
+  const ToolCommand mf = colmap_mapper_fixed_focal_command("/o/db.db", "/o/images", "/o/cam", "/o/out", p);
+  CHECK(mf.argv[1] == "mapper");
+  CHECK(after(mf.argv, "--input_path") == "/o/cam");
+  CHECK(after(mf.argv, "--output_path") == "/o/out");
+  CHECK(after(mf.argv, "--Mapper.ba_refine_focal_length") == "0");
+  CHECK(std::abs(focal_from_fov(90, 512) - 256) < 1e-9);
+  CHECK(std::abs(focal_from_fov(60, 640) - 320 / std::tan(3.14159265358979 / 6)) < 1e-9);
+  CHECK_THROWS_WITH(focal_from_fov(180, 512), Catch::Contains("field of view"));
+
+  TempDir t;
+  write_colmap_camera_only((t.root / "cam").string(), "SIMPLE_PINHOLE", 512, 384, 431.5);
+  const ColmapModel m = read_colmap_model((t.root / "cam").string());
+  REQUIRE(m.cameras.size() == 1);
+  CHECK(m.cameras.begin()->first == 1);
+  CHECK(m.cameras.begin()->second.params == std::vector<double>{431.5, 256, 192});
+  CHECK(m.images.empty());
+  write_colmap_camera_only((t.root / "cam2").string(), "PINHOLE", 100, 100, 80);
+  CHECK(read_colmap_model((t.root / "cam2").string()).cameras.begin()->second.params ==
+        std::vector<double>{80, 80, 50, 50});
+  CHECK_THROWS_WITH(write_colmap_camera_only((t.root / "c3").string(), "SIMPLE_RADIAL", 10, 10, 5),
+                    Catch::Contains("SIMPLE_RADIAL"));
+  CHECK_THROWS_WITH(write_colmap_camera_only((t.root / "c4").string(), "PINHOLE", 10, 10, -5),
+                    Catch::Contains("must be positive"));
+
+  // The orbit score: an even arc scores lower than one whose steps are uneven,
+  // and a missing frame costs its share.
+  auto arc = [](double unevenness, int frames) {
+    std::vector<FrameCamera<double>> cams;
+    const Intrinsics<double> k{400, 400, 256, 256, 512, 512};
+    double az = 0;
+    for (int i = 0; i < frames; ++i) {
+      az += 3.8 * (1 + unevenness * ((i % 2) ? 1 : -1));
+      const double a = az * 3.14159265358979 / 180;
+      FrameCamera<double> f;
+      f.name = std::to_string(1000 + i);
+      f.camera = Camera<double>::look_at({4 * std::cos(a), 4 * std::sin(a), 1}, {0, 0, 0}, {0, 0, 1}, k);
+      cams.push_back(f);
+    }
+    return cams;
+  };
+  const OrbitFitScore even = orbit_fit_score(arc(0, 33), 33), uneven = orbit_fit_score(arc(0.3, 33), 33),
+                      short_one = orbit_fit_score(arc(0, 30), 33);
+  REQUIRE(even.usable);
+  CHECK(even.step_spread < 1e-6);
+  CHECK(uneven.value > even.value + 0.2);
+  CHECK(std::abs(short_one.missing - 3.0 / 33) < 1e-12);
+  CHECK(short_one.value > even.value);
+  CHECK(!orbit_fit_score(arc(0, 2), 2).usable);
 }
 
 TEST_CASE("cameras stage: a missing program is named with its Debian package before any work", "[pipeline][cameras]") {
@@ -283,6 +336,17 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
   REQUIRE(!lines.empty());
   CHECK(lines.front().find("running again: cameras/sparse/0/images.bin changed size") != std::string::npos);
   CHECK(third.registered_names.size() >= 8);
+
+  // A given focal length is held: the chosen model carries it exactly.
+  CameraStageParams given = p;
+  given.focal_px = 0.9 * read_colmap_model((cam / "sparse" / "0").string()).cameras.begin()->second.params[0];
+  const CameraStageResult fixed = stage_cameras(out.string(), given);
+  CHECK(!fixed.skipped);
+  CHECK(fixed.registered_names.size() >= 8);
+  CHECK(std::abs(read_colmap_model((cam / "sparse" / "0").string()).cameras.begin()->second.params[0] -
+                 given.focal_px) < 1e-6 * given.focal_px);
+  const std::string estimate = text_of(cam / "estimate.json");
+  CHECK(estimate.find("\"chosen_by\": \"given\"") != std::string::npos);
   WARN("cameras stage end to end: " << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
                                     << " s, " << r.registered_names.size() << " of 10 registered");
 }

@@ -46,6 +46,7 @@ struct VhatFrame {
   double position = 0;  // canonical view index (fractional for off-orbit cameras), for order and time code
   std::string origin;   // "R0 view 12", "recorded 046.png", "completed 0123.png"
   bool from_r0 = false; // an R0 render of the supported arc (else a completion frame)
+  int order = -1;       // a completion frame's place in the provider's own sequence (the clip's order)
 };
 
 // Position of a recorded camera on the canonical orbit, in views (0 .. N-1, fractional).

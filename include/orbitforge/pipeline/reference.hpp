@@ -13,9 +13,11 @@
 //   - frames outside the source get the aligned reference camera (with the
 //     reference intrinsics) and the reference image: the oracle completion
 //     provider and the gap scores read them, as they read a recorded model's;
-//   - withheld source frames are scored at the aligned reference camera
-//     (PipelineInput::scoring_cameras), not at the one the user's estimator
-//     gave them, so a wrong focal length or a drifting arc shows in the score.
+//   - withheld source frames are scored twice: at the camera the user's
+//     estimator gave them (the user has it), and at the aligned reference
+//     camera (PipelineInput::scoring_cameras), where a wrong focal length or a
+//     drifting arc shows, and so does the two estimates' own disagreement
+//     (a few tenths of a degree per frame costs several dB on sharp frames).
 // Training frames, sparse points and the orbit fit never see the reference.
 #include <algorithm>
 #include <cmath>

@@ -165,7 +165,10 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
     vhat.push_back(std::move(f));
   }
   if (!res.reuse_r0)
-    for (auto& f : res.frames) vhat.push_back(std::move(f));
+    for (std::size_t k = 0; k < res.frames.size(); ++k) {
+      res.frames[k].order = int(k);
+      vhat.push_back(std::move(res.frames[k]));
+    }
   std::stable_sort(vhat.begin(), vhat.end(),
                    [](const VhatFrame<Scalar>& a, const VhatFrame<Scalar>& b) { return a.position < b.position; });
   ensure(!vhat.empty(), "pipeline: V_hat is empty (no rendered R0 view in the arc and no completion frame)");
@@ -204,6 +207,7 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
     e["position"] = vhat[i].position;
     e["origin"] = vhat[i].origin;
     e["kind"] = vhat[i].from_r0 ? "arc_render" : "completion";
+    if (!vhat[i].from_r0) e["completion_order"] = vhat[i].order;
     list.push_back(e);
   }
   const nlohmann::json metrics = {
