@@ -65,7 +65,8 @@ StillVerdict<Scalar> check_still_scene(const GaussianScene<Scalar>& scene, const
   for (std::size_t j = 0; j < k; ++j) {
     const TrainFrame<Scalar>& f = frames[j * frames.size() / k];
     const double deformed = fit_psnr(render_deformed(f.camera, f.time), f.image);
-    v.gain_db += (deformed - fit_psnr(renderer.render(SceneView<Scalar>(v.baked), f.camera).color, f.image)) / double(k);
+    const double baked = fit_psnr(renderer.render(SceneView<Scalar>(v.baked), f.camera).color, f.image);
+    v.gain_db += (deformed - baked) / double(k);
   }
   v.bake = v.gain_db < p.still_gain_db;
   return v;
