@@ -45,7 +45,8 @@ TEST_CASE("protocol paper: every setting as published", "[pipeline][protocol]") 
     CHECK_THAT(p.negative_prompt, Catch::Contains(w));
 
   // [backend arguments/__init__.py OptimizationParams]
-  CHECK(t.iterations == 10000);
+  // (The budget is iters_g0 / iters_g1's, checked above; params.train leaves it unset.)
+  CHECK(t.iterations == TrainParams{}.iterations);
   CHECK(t.warmup_iterations == 3000);
   CHECK(t.position_lr_init == 0.00016);
   CHECK(t.position_lr_final == 0.0000016);
@@ -65,7 +66,9 @@ TEST_CASE("protocol paper: every setting as published", "[pipeline][protocol]") 
   // [backend arguments/__init__.py ModelParams]: sh_degree 3; [backend train.py]: one degree per 1,000 iterations.
   CHECK(t.max_sh_degree == 3);
   // The schedule as it runs at 10,000 iterations: not scaled to the budget.
-  const TrainSchedule s = TrainSchedule::make(t);
+  TrainParams g0 = t;
+  g0.iterations = p.iters_g0;
+  const TrainSchedule s = TrainSchedule::make(g0);
   CHECK(s.warmup == 3000);
   CHECK(s.sh_interval == 1000);
   CHECK(s.densify.densify_from == 500);

@@ -1,8 +1,12 @@
 #pragma once
 // Settings of the whole method (run_pipeline, pipeline.hpp) and the exception
 // that pauses it while an external completion is pending.
+#include <array>
 #include <functional>
+#include <sstream>
 #include <string>
+#include <type_traits>
+#include <utility>
 
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/geometry/completion_layout.hpp"
@@ -74,8 +78,52 @@ struct PipelineParams {
   // Called after every training iteration (label "G0" / "G1"); may throw to stop
   // a run, which then resumes from the last partial checkpoint.
   std::function<void(const std::string& label, int iteration)> on_iteration;
-  TrainParams train;                // other training settings (iterations, mode, seed, threads, background are set here)
+  // The other training settings. Six of its fields have owners above (or in the
+  // input): iterations (iters_g0 / iters_g1), deformable (deformable /
+  // g1_deformable), seed, threads, min_densify_interval, and background (the
+  // input's). Here they stay at TrainParams's defaults or repeat the owner's
+  // value; anything else is refused by check_train_owners, naming both fields.
+  TrainParams train;
 };
+
+// Refuses a value in params.train that its owner (see PipelineParams::train)
+// would contradict, naming both fields; `background` is the input's.
+inline void check_train_owners(const PipelineParams& p, const std::array<double, 3>& background) {
+  const TrainParams unset;
+  auto refuse_if = [](bool conflict, const char* field, const auto& value, const std::string& owner,
+                      const auto& owner_value, const auto& default_value) {
+    if (!conflict) return;
+    auto str = [](const auto& v) {
+      std::ostringstream os;
+      if constexpr (std::is_same_v<std::decay_t<decltype(v)>, std::array<double, 3>>)
+        os << "{" << v[0] << ", " << v[1] << ", " << v[2] << "}";
+      else
+        os << std::boolalpha << v;
+      return os.str();
+    };
+    fail("pipeline: params.train.", field, " = ", str(value), " conflicts with ", owner, " = ", str(owner_value),
+         ", which sets it; set ", owner, ", and leave params.train.", field, " at its default (", str(default_value),
+         ") or equal to it");
+  };
+  const TrainParams& t = p.train;
+  for (const auto& [owner, iters] :
+       {std::pair<const char*, int>{"params.iters_g0", p.iters_g0}, {"params.iters_g1", p.iters_g1}})
+    refuse_if(t.iterations != unset.iterations && t.iterations != iters, "iterations", t.iterations, owner, iters,
+              unset.iterations);
+  // G1 paper is always deformable; G0, G1 and the bound as their fields say.
+  for (const auto& [owner, deformable] :
+       {std::pair<const char*, bool>{"params.deformable", p.deformable}, {"params.g1_deformable", p.g1_deformable}})
+    refuse_if(t.deformable != unset.deformable && t.deformable != deformable, "deformable", t.deformable, owner,
+              deformable, unset.deformable);
+  refuse_if(t.seed != unset.seed && t.seed != p.seed, "seed", t.seed, "params.seed", p.seed, unset.seed);
+  refuse_if(t.threads != unset.threads && t.threads != p.threads, "threads", t.threads, "params.threads", p.threads,
+            unset.threads);
+  refuse_if(t.min_densify_interval != unset.min_densify_interval && t.min_densify_interval != p.min_densify_interval,
+            "min_densify_interval", t.min_densify_interval, "params.min_densify_interval", p.min_densify_interval,
+            unset.min_densify_interval);
+  refuse_if(t.background != unset.background && t.background != background, "background", t.background,
+            "the input's background (PipelineInput::background)", background, unset.background);
+}
 
 // The external provider is waiting for completed frames.
 class PipelineStopped : public Error {

@@ -106,6 +106,10 @@ inline void apply_protocol(PipelineParams& p, Protocol protocol) {
   const int threads = p.train.threads;
   p.train = paper_train_params(10000);
   p.train.threads = threads;
+  // The budgets and the interval floor are the fields above's (iters_g0 / iters_g1,
+  // min_densify_interval; check_train_owners): the training settings leave them unset.
+  p.train.iterations = TrainParams{}.iterations;
+  p.train.min_densify_interval = TrainParams{}.min_densify_interval;
 }
 
 }  // namespace orbitforge

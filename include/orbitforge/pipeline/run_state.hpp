@@ -115,7 +115,10 @@ struct PipelineRun {
 
   int input_index_of_source(int t) const { return input->source[std::size_t(fit.source[std::size_t(t)].input_index)]; }
 
+  // params.train with the fields the pipeline owns set from their owners
+  // (refused when params.train contradicts them: check_train_owners).
   TrainParams train_params(int iters, bool deformable) const {
+    check_train_owners(params, input->background);
     TrainParams t = params.train;
     t.iterations = iters;
     t.deformable = deformable;
