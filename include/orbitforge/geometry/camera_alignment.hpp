@@ -56,9 +56,12 @@ struct CameraAlignment {
 };
 
 // Rotation angle of R_a^T R_b, in degrees: how far two orientations differ.
+// atan2 of the sine (from the skew part) and the cosine (from the trace) keeps
+// full precision near 0, where acos of the trace alone loses half the digits.
 inline double rotation_angle_deg(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
-  const double c = std::clamp(((a.transpose() * b).trace() - 1) / 2, -1.0, 1.0);
-  return std::acos(c) * 180.0 / Constants<double>::pi();
+  const Eigen::Matrix3d d = a.transpose() * b;
+  const Eigen::Vector3d skew(d(2, 1) - d(1, 2), d(0, 2) - d(2, 0), d(1, 0) - d(0, 1));
+  return std::atan2(skew.norm() / 2, (d.trace() - 1) / 2) * 180.0 / Constants<double>::pi();
 }
 
 // Aligns `from` onto `to` (parallel lists of the same frames' cameras). Needs at

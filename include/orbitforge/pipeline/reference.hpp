@@ -99,7 +99,7 @@ inline std::pair<double, double> line_fit(const std::vector<double>& x, const st
 
 // What the reference says of the estimated cameras and the fitted orbit:
 // the alignment's residuals; the source arc on the fitted orbit by the user's
-// cameras and by the aligned reference; the focal lengths (at the working
+// cameras and by the reference on an orbit fitted to its own cameras; the focal lengths (at the working
 // size); and, for every frame outside the source, how far its reference camera
 // lies from where the fitted orbit's constant-speed motion puts that frame.
 template <class Scalar>
@@ -131,12 +131,19 @@ nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<
     max_abs = std::max(max_abs, std::abs(err));
     ++n;
   }
-  // The reference's own source arc and focal length, on the same fitted orbit.
-  std::vector<double> ref_az;
+  // The reference's own source arc, on an orbit fitted to its own cameras: on
+  // the user's orbit a bent estimate would bend the yardstick too.
+  std::vector<FrameCamera<Scalar>> ref_source;
   std::vector<double> ref_focal, user_focal;
   for (const auto& [f, c] : in.reference->source_cameras) {
-    ref_az.push_back(azimuth(c));
+    ref_source.push_back({std::to_string(f), c, true});
     ref_focal.push_back(double(c.intrinsics.fx));
+  }
+  double ref_arc = 0;
+  if (ref_source.size() >= 3) {
+    OrbitParams own;
+    own.views = std::max(fit.views, 4);
+    ref_arc = double(fit_orbit(ref_source, own).diagnostics.source_span_deg);
   }
   for (int f : in.source) user_focal.push_back(double(in.cameras[std::size_t(f)].camera.intrinsics.fx));
   auto median = [](std::vector<double> v) {
@@ -151,7 +158,7 @@ nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<
             {"centre_rms_relative", a.centre_rms_relative},
             {"rotation_mean_deg", a.rotation_mean_deg},
             {"rotation_max_deg", a.rotation_max_deg}}},
-          {"source_arc_deg", {{"user", double(fit.diagnostics.source_span_deg)}, {"reference", azimuth_span_of(ref_az)}}},
+          {"source_arc_deg", {{"user", double(fit.diagnostics.source_span_deg)}, {"reference", ref_arc}}},
           {"focal_px", {{"user", median(user_focal)}, {"reference", median(ref_focal)}}},
           {"orbit_speed_deg_per_frame", speed},
           {"gap_azimuth_error_deg", {{"frames", n}, {"mean_abs", n ? sum_abs / n : 0.0}, {"max_abs", max_abs}}}};
