@@ -17,6 +17,7 @@
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/colmap.hpp"
+#include "orbitforge/io/colmap_frames.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/npy.hpp"
 #include "orbitforge/io/transforms_json.hpp"
@@ -37,7 +38,7 @@ const char* kUsage =
 struct Args {
   std::string colmap, transforms, npy_ext, npy_int, npy_size, frames, out, export_colmap, export_transforms;
   std::string circle = "geometric", anchors = "source_aligned";
-  bool synthetic = false;
+  bool synthetic = false, frames_given = false;
   OrbitParams orbit;
 };
 
@@ -53,8 +54,16 @@ Args parse(int argc, char** argv) {
     else if (f == "--npy-intrinsics") a.npy_int = w.value();
     else if (f == "--npy-size") a.npy_size = w.value();
     else if (f == "--synthetic") a.synthetic = true;
-    else if (f == "--frames") a.frames = w.value();
-    else if (f == "--views") a.orbit.views = integer(3);
+    else if (f == "--frames") {
+      a.frames = w.value();
+      a.frames_given = true;
+      try {
+        parse_frame_range(a.frames);
+      } catch (const Error& e) {
+        throw cli::UsageError(std::string("fit_orbit: --frames: ") + e.what());
+      }
+    }
+    else if (f == "--views") a.orbit.views = int(cli::parse_int("fit_orbit", f, w.value(), 3, kMaxOrbitViews));
     else if (f == "--width") a.orbit.width = integer(1);
     else if (f == "--height") a.orbit.height = integer(1);
     else if (f == "--elevation-offset") a.orbit.elevation_offset_deg = cli::parse_double("fit_orbit", f, w.value());
@@ -79,7 +88,8 @@ Args parse(int argc, char** argv) {
 }
 
 std::vector<FrameCamera<double>> load_cameras(const Args& a) {
-  if (!a.colmap.empty()) return colmap_frame_cameras<double>(read_colmap_model(find_colmap_model_dir(a.colmap)));
+  if (!a.colmap.empty())
+    return colmap_video_frames<double>(read_colmap_model(find_colmap_model_dir(a.colmap)), colmap_images_dir(a.colmap));
   if (!a.transforms.empty()) return read_transforms_json<double>(a.transforms);
   if (a.synthetic) {
     SyntheticInputParams sp;
@@ -104,8 +114,16 @@ int main(int argc, char** argv) {
   }
   return cli::run([&] {
     const Args a = parse(argc, argv);
-    auto cams = load_cameras(a);
-    if (!a.frames.empty()) cams = select_frames(cams, parse_frame_range(a.frames));
+    // --frames counts every frame of the video, registered or not, as the
+    // pipeline does; frames without a camera are skipped and named.
+    const RegisteredFrames<double> sel =
+        select_registered_frames(load_cameras(a), a.frames_given ? parse_frame_range(a.frames) : FrameRange{});
+    if (!sel.skipped.empty()) {
+      std::cout << "fit_orbit: skipping " << sel.skipped.size() << " frames without a camera:";
+      for (const auto& s : sel.skipped) std::cout << ' ' << s;
+      std::cout << '\n';
+    }
+    const auto& cams = sel.cameras;
     const auto fit = fit_orbit(cams, a.orbit);
     std::vector<std::string> names;
     for (const auto& s : fit.source) names.push_back(s.name);
@@ -128,8 +146,8 @@ int main(int argc, char** argv) {
     std::cout << "fit_orbit: " << d.cameras_used << " cameras used, " << d.cameras_skipped.size() << " skipped; span "
               << d.source_span_deg << " deg; circle RMSE " << d.circle_rmse << "; look-at error " << d.lookat_error_deg
               << " deg (" << d.convention << "); normal by " << d.normal_rule << "; direction "
-              << fit.orbit.direction << "; observed bins " << d.observed_bins << ", arc [0, "
-              << fit.support.arc_end << "], gap bins " << d.gap_bins << "; anchors " << layout.anchors.size()
+              << fit.orbit.direction << "; observed bins " << d.observed_bins << ", arc 0 to "
+              << 360.0 * fit.support.arc_end / (fit.views - 1) << " deg, gap bins " << d.gap_bins << "; anchors " << layout.anchors.size()
               << " (index error mean " << layout.anchor_error_mean << ", max " << layout.anchor_error_max << ")\n"
               << "fit_orbit: wrote " << a.out << "\n";
     return 0;

@@ -8,6 +8,7 @@
 //   host_adaptor OUT.png
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <vector>
 
 #include "orbitforge/io/image_io.hpp"
@@ -39,6 +40,10 @@ struct SplatAdaptor {
 
 int main(int argc, char** argv) {
   using namespace orbitforge;
+  if (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
+    std::printf("usage: host_adaptor OUT.png\n");
+    return 0;
+  }
   if (argc != 2) {
     std::fprintf(stderr, "usage: host_adaptor OUT.png\n");
     return 2;

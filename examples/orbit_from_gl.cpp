@@ -52,8 +52,13 @@ std::vector<Eigen::Matrix4d> read_poses(const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  const char* usage = "usage: orbit_from_gl [POSES.txt WIDTH HEIGHT FOV_Y_DEG]\n";
+  if (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
+    std::printf("%s", usage);
+    return 0;
+  }
   if (argc != 1 && argc != 5) {
-    std::fprintf(stderr, "usage: orbit_from_gl [POSES.txt WIDTH HEIGHT FOV_Y_DEG]\n");
+    std::fprintf(stderr, "%s", usage);
     return 2;
   }
   try {

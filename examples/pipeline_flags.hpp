@@ -108,7 +108,7 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--iters-g1") {
     p.iters_g1 = integer(1);
     f.iters_g1_set = true;
-  } else if (flag == "--views") p.orbit.views = integer(9);
+  } else if (flag == "--views") p.orbit.views = int(parse_int(program, flag, a.value(), 9, kMaxOrbitViews));
   else if (flag == "--render-stride") p.render_stride = integer(1);
   else if (flag == "--median-samples") p.median_samples = integer(2);
   else if (flag == "--threads") p.threads = parse_threads(program, flag, a.value());

@@ -57,6 +57,32 @@ TEMPLATE_TEST_CASE("select_frames: slices in order, errors out of range", "[io][
   require_error([&] { select_frames(std::vector<FrameCamera<TestType>>{}, FrameRange{}); }, {"beyond the 0"});
 }
 
+TEMPLATE_TEST_CASE("select_registered_frames: video frame numbers, unregistered frames named", "[io][frames]", float,
+                   double) {
+  auto frames = orbitforge_test::random_frame_cameras<TestType>(90, 1);
+  for (int unregistered : {29, 30, 31, 32, 33, 60}) frames[std::size_t(unregistered - 1)].valid = false;
+  const auto a = select_registered_frames(frames, parse_frame_range("1-33"));
+  REQUIRE(a.cameras.size() == 28);
+  CHECK(a.numbers.front() == 1);
+  CHECK(a.numbers.back() == 28);
+  CHECK(a.cameras.back().name == "frame_028.png");
+  REQUIRE(a.skipped.size() == 5);
+  CHECK(a.skipped.front() == "frame 29 (frame_029.png)");
+  CHECK(a.skipped.back() == "frame 33 (frame_033.png)");
+  // The same range means the same frames when every frame is registered.
+  const auto all = orbitforge_test::random_frame_cameras<TestType>(90, 1);
+  const auto b = select_registered_frames(all, parse_frame_range("1-33"));
+  CHECK(b.cameras.size() == 33);
+  CHECK(b.skipped.empty());
+  CHECK(select_registered_frames(frames, FrameRange{}).cameras.size() == 84);
+
+  require_error([&] { select_registered_frames(frames, parse_frame_range("85-95")); },
+                {"last frame 95 is beyond the 90 frames of the video"});
+  require_error([&] { select_registered_frames(frames, parse_frame_range("29-33")); },
+                {"29-33", "none of its 5 frames has a camera"});
+  require_error([&] { parse_frame_range(""); }, {"is not a whole number"});
+}
+
 TEST_CASE("select_frames on a recorded video: frames 1-33 of doll", "[io][frames][data]") {
   if (!orbitforge_test::have_shared_data("v3d/doll/sparse/0")) return;
   const auto cams = colmap_frame_cameras<double>(read_colmap_model(orbitforge_test::shared_path("v3d/doll")));

@@ -55,6 +55,10 @@ enum class OrbitCenter { look_at, circle };
 
 inline const char* orbit_center_name(OrbitCenter c) { return c == OrbitCenter::look_at ? "look_at" : "circle"; }
 
+// The most canonical views an orbit may have: one each 0.01 degree. Checked
+// before anything is allocated, so a mistyped count is refused at once.
+constexpr int kMaxOrbitViews = 36001;
+
 struct OrbitParams {
   int views = 361;                   // the paper's N: 0, 1, ..., 360 degrees (the last repeats the first)
   int width = 896, height = 512;     // the paper's canonical render size
@@ -148,7 +152,8 @@ struct OrbitGeometry {
 template <class Scalar>
 std::vector<Camera<Scalar>> canonical_cameras(const OrbitGeometry<Scalar>& g, int views,
                                               const Intrinsics<Scalar>& k) {
-  ensure(views >= 2, "canonical_cameras: need at least 2 views, got ", views);
+  ensure(views >= 2 && views <= kMaxOrbitViews, "canonical_cameras: views must lie in [2, ", kMaxOrbitViews,
+         "], got ", views);
   std::vector<Camera<Scalar>> cams;
   cams.reserve(views);
   for (int i = 0; i < views; ++i)
@@ -241,7 +246,8 @@ template <class Scalar>
 OrbitFit<Scalar> fit_orbit(const std::vector<FrameCamera<Scalar>>& source, const OrbitParams& p = {}) {
   using Vec3 = Eigen::Matrix<Scalar, 3, 1>;
   using Vec2 = Eigen::Matrix<Scalar, 2, 1>;
-  ensure(p.views >= 3, "fit_orbit: need at least 3 canonical views, got ", p.views);
+  ensure(p.views >= 3 && p.views <= kMaxOrbitViews, "fit_orbit: canonical views must lie in [3, ", kMaxOrbitViews,
+         "] (one each 0.01 degree at most), got ", p.views);
   ensure(p.width > 0 && p.height > 0, "fit_orbit: render size ", p.width, "x", p.height);
   ensure(std::isfinite(p.elevation_offset_deg) && std::abs(p.elevation_offset_deg) < 89,
          "fit_orbit: elevation offset ", p.elevation_offset_deg, " outside (-89, 89) degrees");

@@ -55,4 +55,38 @@ std::vector<FrameCamera<S>> select_frames(const std::vector<FrameCamera<S>>& cam
   return std::vector<FrameCamera<S>>(cams.begin() + (r.first - 1), cams.begin() + last);
 }
 
+// A range of video frame numbers over every frame of a video, registered or not
+// (`frames[i].valid` false where the camera estimator did not register frame
+// i + 1): the range's registered frames, and the others named. The same range
+// means the same frames whichever frames the estimator kept.
+template <class S>
+struct RegisteredFrames {
+  std::vector<FrameCamera<S>> cameras;  // registered frames of the range, in frame order
+  std::vector<int> numbers;             // their 1-based frame numbers
+  std::vector<std::string> skipped;     // "frame 29 (name)" for each unregistered frame of the range
+};
+
+template <class S>
+RegisteredFrames<S> select_registered_frames(const std::vector<FrameCamera<S>>& frames, FrameRange r) {
+  const int n = static_cast<int>(frames.size());
+  const int last = r.last < 0 ? n : r.last;
+  ensure(r.first <= n, "frame range ", r.first, "-", last, ": first frame ", r.first, " is beyond the ", n,
+         " frames of the video");
+  ensure(last <= n, "frame range ", r.first, "-", last, ": last frame ", last, " is beyond the ", n,
+         " frames of the video");
+  RegisteredFrames<S> out;
+  for (int i = r.first - 1; i < last; ++i) {
+    const auto& fc = frames[std::size_t(i)];
+    if (fc.valid) {
+      out.cameras.push_back(fc);
+      out.numbers.push_back(i + 1);
+    } else {
+      out.skipped.push_back("frame " + std::to_string(i + 1) + " (" + fc.name + ")");
+    }
+  }
+  ensure(!out.cameras.empty(), "frame range ", r.first, "-", last, ": none of its ", last - r.first + 1,
+         " frames has a camera");
+  return out;
+}
+
 }  // namespace orbitforge

@@ -34,6 +34,7 @@
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/geometry/camera_alignment.hpp"
 #include "orbitforge/io/colmap.hpp"
+#include "orbitforge/io/colmap_frames.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
@@ -250,47 +251,28 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   const bool native = width == 0 && height == 0;
   ensure(native || (width >= 8 && height >= 8), "load_colmap_input: working size ", width, "x", height,
          " is too small");
-  const std::string model_dir = find_colmap_model_dir(dir);
-  const ColmapModel model = read_colmap_model(model_dir);
-  fs::path images = fs::path(dir) / "images";
-  if (!fs::is_directory(images)) images = fs::path(model_dir).parent_path().parent_path() / "images";
-  ensure(fs::is_directory(images), dir, ": no images/ folder next to the COLMAP model");
-  const std::vector<FrameCamera<Scalar>> registered = colmap_frame_cameras<Scalar>(model);
-  ensure(!registered.empty(), dir, ": the COLMAP model has no images");
-  if (native) {
-    width = registered.front().camera.intrinsics.width;
-    height = registered.front().camera.intrinsics.height;
-    for (const auto& fc : registered)
-      ensure(fc.camera.intrinsics.width == width && fc.camera.intrinsics.height == height, dir, ": image ", fc.name,
-             " is ", fc.camera.intrinsics.width, "x", fc.camera.intrinsics.height, ", the first is ", width, "x",
-             height, "; give a working size to load frames of several sizes");
-  }
-
+  const ColmapModel model = read_colmap_model(find_colmap_model_dir(dir));
+  const std::string images_dir = colmap_images_dir(dir);
+  ensure(!images_dir.empty(), dir, ": no images/ folder next to the COLMAP model");
+  const fs::path images(images_dir);
   PipelineInput<Scalar> in;
+  in.cameras = colmap_video_frames<Scalar>(model, images_dir);
+  if (native) {
+    const FrameCamera<Scalar>* first = nullptr;
+    for (const auto& fc : in.cameras) {
+      if (!fc.valid) continue;
+      if (!first) first = &fc;
+      ensure(fc.camera.intrinsics.width == first->camera.intrinsics.width &&
+                 fc.camera.intrinsics.height == first->camera.intrinsics.height,
+             dir, ": image ", fc.name, " is ", fc.camera.intrinsics.width, "x", fc.camera.intrinsics.height,
+             ", the first is ", first->camera.intrinsics.width, "x", first->camera.intrinsics.height,
+             "; give a working size to load frames of several sizes");
+    }
+    width = first->camera.intrinsics.width;
+    height = first->camera.intrinsics.height;
+  }
   in.width = width;
   in.height = height;
-  // Frames: every image of the folder; the model's cameras attached by name.
-  std::map<std::string, const FrameCamera<Scalar>*> by_name;
-  for (const auto& fc : registered) by_name[fc.name] = &fc;
-  for (const std::string& name : list_image_files(images.string())) {
-    FrameCamera<Scalar> fc;
-    fc.name = name;
-    const auto it = by_name.find(name);
-    if (it != by_name.end()) {
-      fc = *it->second;
-      by_name.erase(it);
-    } else {
-      fc.valid = false;
-    }
-    in.cameras.push_back(std::move(fc));
-  }
-  for (const auto& [name, fc] : by_name) {
-    (void)fc;
-    fail((images / name).string(), ": in the COLMAP model but its image is missing");
-  }
-  // Frames without a camera keep the intrinsics of the model's first camera (never used to render).
-  for (auto& fc : in.cameras)
-    if (!fc.valid) fc.camera.intrinsics = registered.front().camera.intrinsics;
 
   in.images.resize(in.cameras.size());
   for (std::size_t i = 0; i < in.cameras.size(); ++i) {

@@ -43,19 +43,21 @@ constexpr std::array<float, 3> kWhite{{1, 1, 1}}, kGray{{0.55f, 0.55f, 0.55f}}, 
 // Rows = sequences (e.g. R0, R1), columns = 0, 30, ..., 330 degrees along the orbit.
 // `frame(row, view)` returns that row's image of canonical view `view`, or an empty
 // image when not rendered (the nearest rendered view is the caller's business).
-inline Image<float> contact_sheet(int rows, int views, int tile,
+// Cells are cell_width x cell_height: give them the frames' aspect, so that
+// non-square frames fill their cells.
+inline Image<float> contact_sheet(int rows, int views, int cell_width, int cell_height,
                                   const std::function<Image<float>(int, int)>& frame) {
+  ensure(rows >= 1 && views >= 2 && cell_width >= 1 && cell_height >= 1, "contact_sheet: ", rows, " rows, ", views,
+         " views, cells ", cell_width, "x", cell_height);
   const int cols = 12, pad = 2;
-  Image<float> sheet(cols * (tile + pad) + pad, rows * (tile + pad) + pad, 3, 0.1f);
+  Image<float> sheet(cols * (cell_width + pad) + pad, rows * (cell_height + pad) + pad, 3, 0.1f);
   for (int r = 0; r < rows; ++r) {
     for (int c = 0; c < cols; ++c) {
       const int view = int(std::lround(double(c) * 30.0 / 360.0 * double(views - 1)));
       Image<float> img = frame(r, view);
       if (img.empty()) continue;
-      img = to_rgb(img);
-      const int tw = tile, th = std::max(1, int(std::lround(double(tile) * img.height / img.width)));
-      img = resize_image(img, tw, std::min(th, tile), ResizeFilter::area);
-      const int x0 = pad + c * (tile + pad), y0 = pad + r * (tile + pad);
+      img = resize_image(to_rgb(img), cell_width, cell_height, ResizeFilter::area);
+      const int x0 = pad + c * (cell_width + pad), y0 = pad + r * (cell_height + pad);
       for (int y = 0; y < img.height; ++y)
         for (int x = 0; x < img.width; ++x)
           for (int k = 0; k < 3; ++k) sheet(x0 + x, y0 + y, k) = std::min(1.0f, std::max(0.0f, img(x, y, k)));

@@ -147,9 +147,9 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   }
 
   // Pictures.
-  const int tile = std::min(128, in.width);
+  const int tile = std::min(128, in.width), tile_height = std::max(1, int(std::lround(double(tile) * in.height / in.width)));
   auto nearest = [&](int v) { return std::min(run.fit.views - 1, int(std::lround(double(v) / p.render_stride)) * p.render_stride); };
-  const Image<float> sheet = contact_sheet(2, run.fit.views, tile, [&](int row, int v) {
+  const Image<float> sheet = contact_sheet(2, run.fit.views, tile, tile_height, [&](int row, int v) {
     const fs::path f = out / (row == 0 ? "R0" : "R1") / view_file(nearest(v));
     std::error_code ec;
     return fs::exists(f, ec) ? read_image<float>(f.string()) : Image<float>();
