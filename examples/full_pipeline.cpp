@@ -188,7 +188,8 @@ int main(int argc, char** argv) {
       input = synthetic_pipeline_input<S>(sp, p.threads);
       if (p.prompt.empty()) p.prompt = "a striped capsule on a checkered floor";
       withhold_every(input, flags.holdout_every);
-      const BackgroundEstimate bg = choose_background(input, flags.background ? &*flags.background : nullptr);
+      BackgroundEstimate bg = choose_background(input, flags.background ? &*flags.background : nullptr);
+      if (flags.random_background) force_random_background(input, bg);
       std::fprintf(stderr, "full_pipeline: background %.3f,%.3f,%.3f: %s\n", bg.color[0], bg.color[1], bg.color[2],
                    bg.reason.c_str());
     } else if (in.estimate_cameras()) {

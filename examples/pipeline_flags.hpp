@@ -27,7 +27,7 @@ inline const char* kPipelineFlagsUsage =
     "  --holdout-every K           withhold every K-th source frame from every reconstruction (0 = none)\n"
     "  --completion oracle|perturbed|perturbed-geometric|external|none\n"
     "  --iters N --iters-g1 N      iterations of G0 and G1\n"
-    "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b\n"
+    "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b|random\n"
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
     "  --g1-source-repeats N --g1-completion-repeats N\n"
     "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
@@ -55,6 +55,7 @@ struct PipelineFlags {
   int holdout_every = 0;
   bool iters_g1_set = false;
   std::optional<std::array<double, 3>> background;
+  bool random_background = false;  // --background random
   // Cameras estimated from the source frames (COLMAP): the lens when known, and
   // whether to search the focal length otherwise.
   double focal_px = 0, fov_deg = 0;
@@ -114,7 +115,11 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--threads") p.threads = parse_threads(program, flag, a.value());
   else if (flag == "--seed") p.seed = unsigned(integer(0));
   else if (flag == "--static") p.deformable = false;
-  else if (flag == "--background") f.background = parse_rgb(program, flag, a.value());
+  else if (flag == "--background") {
+    const std::string v = a.value();
+    f.random_background = v == "random";
+    if (!f.random_background) f.background = parse_rgb(program, flag, v);
+  }
   else if (flag == "--g1-data") {
     try {
       p.g1_data = parse_g1_data(a.value());
@@ -170,7 +175,8 @@ inline std::array<int, 2> working_size(const PipelineFlags& f) {
 template <class Scalar>
 void finish_recorded_input(const std::string& program, PipelineInput<Scalar>& input, const PipelineFlags& f) {
   withhold_every(input, f.holdout_every);
-  const BackgroundEstimate bg = choose_background(input, f.background ? &*f.background : nullptr);
+  BackgroundEstimate bg = choose_background(input, f.background ? &*f.background : nullptr);
+  if (f.random_background) force_random_background(input, bg);
   if (f.params.progress)
     std::fprintf(stderr, "%s: %s, %dx%d, background %.3f,%.3f,%.3f: %s\n", program.c_str(),
                  input.description.c_str(), input.width, input.height, bg.color[0], bg.color[1], bg.color[2],

@@ -1,7 +1,7 @@
 // reconstruct: fit a (static or deformable) Gaussian scene to a video with COLMAP cameras.
 //
 //   reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]
-//               [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]
+//               [--deformable] [--median-samples 128] [--background r,g,b|random] [--threads N]
 //               [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH] --out DIR
 //
 // DIR (input) holds images/ and sparse/0/ (as shared/data/v3d/*). Frames are the COLMAP
@@ -46,7 +46,7 @@ namespace {
 
 const char* kUsage =
     "usage: reconstruct --colmap DIR [--frames A-B] [--holdout-every K] [--width W --height H] [--iters N]\n"
-    "                   [--deformable] [--median-samples 128] [--background r,g,b] [--threads N]\n"
+    "                   [--deformable] [--median-samples 128] [--background r,g,b|random] [--threads N]\n"
     "                   [--minutes M] [--eval-every N] [--seed S] [--field fast|original|DEPTHxWIDTH]\n"
     "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
     "                   [--coarse-levels L [--coarse-fraction F]] [--max-gaussians N]\n"
@@ -84,6 +84,7 @@ struct Args {
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
   bool background_set = false;  // else estimated from the frames' borders
+  bool background_random = false;  // --background random
   ScaleOffset scale_offset = ScaleOffset::log;
   DeformationFieldParams field = DeformationFieldParams::fast();
 };
@@ -161,8 +162,12 @@ Args parse(int argc, char** argv) {
       a.scale_offset = v == "log" ? ScaleOffset::log : ScaleOffset::additive;
     }
     else if (f == "--background") {
-      a.background = cli::parse_rgb("reconstruct", f, value());
-      a.background_set = true;
+      const std::string v = value();
+      a.background_random = v == "random";
+      if (!a.background_random) {
+        a.background = cli::parse_rgb("reconstruct", f, v);
+        a.background_set = true;
+      }
     } else if (f == "--out") a.out = value();
     else if (f == "-h" || f == "--help") {
       std::cout << kUsage;
@@ -194,6 +199,7 @@ Dataset load(const Args& a) {
   withhold_every(in, a.holdout_every);
   Dataset d;
   d.background = choose_background(in, a.background_set ? &a.background : nullptr);
+  if (a.background_random) force_random_background(in, d.background);
   d.skipped = in.source_skipped;
   for (int f : in.source) {
     TrainFrame<S> t;
@@ -257,6 +263,7 @@ int run(const Args& a) {
   p.seed = a.seed;
   p.threads = a.threads;
   p.background = d.background.color;
+  p.random_background = d.background.random;
   p.deformable = a.deformable;
   p.field = a.field;
   p.field.scale_offset = a.scale_offset;
@@ -333,7 +340,7 @@ int run(const Args& a) {
   m["iterations"] = trainer.iteration();
   m["seconds"] = train_seconds;
   m["gaussians"] = trainer.scene().size();
-  m["background"] = {{"color", d.background.color}, {"reason", d.background.reason}};
+  m["background"] = {{"color", d.background.color}, {"random", d.background.random}, {"reason", d.background.reason}};
   m["points"] = {{"kept", d.points.size() / 3}, {"total", d.points_total}};
   if (a.deformable) m["field"] = std::to_string(a.field.depth) + "x" + std::to_string(a.field.width);
   m["train_psnr"] = evaluate(trainer, d.train, a.threads, false).psnr;

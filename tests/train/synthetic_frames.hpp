@@ -1,7 +1,7 @@
 #pragma once
 // Training frames rendered from a small synthetic scene (pipeline/synthetic_input.hpp)
 // at its true cameras: count frames of size x size pixels (width x size when width
-// is given), white background, time codes spread over [0, 1].
+// is given), white background unless given, time codes spread over [0, 1].
 #include <vector>
 
 #include "orbitforge/pipeline/synthetic_input.hpp"
@@ -11,7 +11,7 @@
 namespace orbitforge_test {
 
 template <class S>
-std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32, int width = 0) {
+std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32, int width = 0, double background = 1) {
   using namespace orbitforge;
   SyntheticInputParams p;
   p.frames = count;
@@ -24,7 +24,7 @@ std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32,
   const auto in = make_synthetic_input<S>(p);
   RenderParams<S> rp;
   rp.threads = 1;
-  rp.background = {S(1), S(1), S(1)};
+  rp.background = {S(background), S(background), S(background)};
   Renderer<S> r(rp);
   std::vector<TrainFrame<S>> frames;
   for (int i = 0; i < count; ++i) {

@@ -80,7 +80,8 @@ TEMPLATE_TEST_CASE("clone, split and prune on a hand-built scene", "[train][dens
   st.add_view(grad, radius);
   st.add_view(grad, radius);
 
-  const DensifyParams params;
+  DensifyParams params;
+  params.min_gaussians = 0;  // the prune rules alone (the floor has its own test)
   for (bool size_prune : {false, true}) {
     INFO("size_prune " << size_prune);
     GaussianScene<S> s = g;
@@ -217,6 +218,37 @@ TEST_CASE("split children follow the parent's rotated, scaled distribution", "[t
     for (int b = 0; b < 3; ++b)
       if (a != b) CHECK(std::abs(cov[a][b]) < 0.05 * s[a] * s[b] + 4 * s[a] * s[b] / std::sqrt(double(g.size())));
   }
+}
+
+TEMPLATE_TEST_CASE("the pruning floor keeps the most opaque when every Gaussian would go", "[train][densify]", float,
+                   double) {
+  using S = TestType;
+  const std::size_t n = 40;
+  GaussianScene<S> g;
+  g.resize(n, 0);
+  // All under min_opacity (0.005), Gaussian i at opacity 1e-4 * (1 + (7 i) % 40).
+  for (std::size_t i = 0; i < n; ++i) set_gaussian<S>(g, i, S(i), S(0.05), S(1e-4 * double(1 + (7 * i) % n)));
+  DensifyStats<S> st;
+  st.reset(n);
+  st.add_view(std::vector<S>(n, S(0)), std::vector<int>(n, 3));
+  DensifyParams p;
+  p.min_gaussians = 10;
+  std::mt19937 rng(3);
+  GaussianScene<S> s = g;
+  const DensifyPlan plan = densify_and_prune(s, st, p, S(10), false, rng);
+  REQUIRE(s.size() == 10);
+  CHECK(plan.spared == 10);
+  CHECK(plan.pruned == n - 10);
+  // The ten kept are the ten most opaque, (7 i) % 40 in 30..39, in their old order.
+  for (std::size_t i = 0; i < n; ++i) CHECK(bool(plan.keep[i]) == ((7 * i) % n >= 30));
+  S lowest_kept = S(1);
+  for (std::size_t k = 0; k < s.size(); ++k) lowest_kept = std::min(lowest_kept, sigmoid(s.opacity_logits[k]));
+  CHECK(double(lowest_kept) == Approx(1e-4 * 31).epsilon(1e-3));
+  // Above the floor the rules decide alone; min_gaussians 0 lets them empty the scene.
+  p.min_gaussians = 0;
+  GaussianScene<S> e = g;
+  CHECK(densify_and_prune(e, st, p, S(10), false, rng).spared == 0);
+  CHECK(e.size() == 0);
 }
 
 TEST_CASE("seeded densification is deterministic", "[train][densify]") {

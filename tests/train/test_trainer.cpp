@@ -156,6 +156,47 @@ TEMPLATE_TEST_CASE("training a tiny scene lowers the loss", "[train][trainer]", 
   CHECK(t.iteration() == iters);
 }
 
+TEST_CASE("random background: the model explains the backdrop a fixed colour would hide", "[train][trainer]") {
+  using S = float;
+  // Frames over a grey backdrop. Trained against that grey, the model may leave
+  // the backdrop empty; against a random colour per iteration it must cover it.
+  const auto frames = tiny_frames<S>(8, 32, 0, 0.5);
+  auto transparency = [&](bool random) {
+    TrainParams p = tiny_params(300);
+    p.background = {0.5, 0.5, 0.5};
+    p.random_background = random;
+    Trainer<S> t(frames, tiny_init(frames), p);
+    t.train(300);
+    // Rendered on black and on white: the difference is 1 - alpha.
+    RenderParams<S> rp;
+    rp.threads = 1;
+    Renderer<S> black(rp);
+    rp.background = {1, 1, 1};
+    Renderer<S> white(rp);
+    double sum = 0;
+    std::size_t n = 0;
+    for (const auto& f : frames) {
+      const Image<S>& b = black.render(SceneView<S>(t.scene()), f.camera).color;
+      const Image<S>& w = white.render(SceneView<S>(t.scene()), f.camera).color;
+      for (std::size_t i = 0; i < b.data.size(); ++i, ++n) sum += double(w.data[i] - b.data[i]);
+    }
+    // Renders between steps (evaluation, the still check) use the fixed colour.
+    rp.background = {0.5f, 0.5f, 0.5f};
+    Renderer<S> grey(rp);
+    CHECK(t.render(frames[0].camera, S(0)).data == grey.render(SceneView<S>(t.scene()), frames[0].camera).color.data);
+    return sum / double(n);
+  };
+  const double fixed = transparency(false), random = transparency(true);
+  INFO("mean transparency: fixed background " << fixed << ", random background " << random);
+  CHECK(fixed > 0.1);
+  CHECK(random < 0.5 * fixed);
+
+  const auto a = random_background_at(11, 7), b = random_background_at(11, 7), c = random_background_at(11, 8);
+  CHECK(a == b);
+  CHECK(a != c);
+  for (double v : a) CHECK((v >= 0 && v < 1));
+}
+
 TEST_CASE("fixed seed: identical result twice", "[train][trainer]") {
   using S = float;
   const auto frames = tiny_frames<S>();

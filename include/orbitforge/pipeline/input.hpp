@@ -76,6 +76,7 @@ struct PipelineInput {
   std::string description;                   // where it came from (for the report)
   std::array<double, 3> background{{0, 0, 0}};
   std::string background_reason = "default";
+  bool random_background = false;  // training draws a background colour per iteration (TrainParams)
   // Where the cameras came from, for the report: a figure measured on cameras
   // estimated with frames outside the source is a lab figure.
   std::string camera_path = "recorded";
@@ -175,7 +176,17 @@ BackgroundEstimate choose_background(PipelineInput<Scalar>& in, const std::array
   }
   in.background = e.color;
   in.background_reason = e.reason;
+  in.random_background = e.random;
   return e;
+}
+
+// `--background random`: training draws a colour per iteration whatever the
+// borders say; the chosen colour stays that of every other render.
+template <class Scalar>
+void force_random_background(PipelineInput<Scalar>& in, BackgroundEstimate& e) {
+  e.random = in.random_background = true;
+  e.reason += "; training draws a random background colour each iteration (--background random)";
+  in.background_reason = e.reason;
 }
 
 // A hash of everything in the input that results depend on.
@@ -183,7 +194,8 @@ template <class Scalar>
 std::uint64_t input_hash(const PipelineInput<Scalar>& in) {
   std::ostringstream os;
   os.precision(10);
-  os << in.width << 'x' << in.height << ' ' << in.background[0] << ',' << in.background[1] << ','
+  os << in.width << 'x' << in.height << ' ' << (in.random_background ? "random " : "") << in.background[0] << ','
+     << in.background[1] << ','
      << in.background[2] << '\n';
   for (const auto& c : in.cameras) {
     const auto& k = c.camera.intrinsics;

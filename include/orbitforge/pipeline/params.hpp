@@ -78,17 +78,18 @@ struct PipelineParams {
   // Called after every training iteration (label "G0" / "G1"); may throw to stop
   // a run, which then resumes from the last partial checkpoint.
   std::function<void(const std::string& label, int iteration)> on_iteration;
-  // The other training settings. Six of its fields have owners above (or in the
+  // The other training settings. Seven of its fields have owners above (or in the
   // input): iterations (iters_g0 / iters_g1), deformable (deformable /
-  // g1_deformable), seed, threads, min_densify_interval, and background (the
-  // input's). Here they stay at TrainParams's defaults or repeat the owner's
+  // g1_deformable), seed, threads, min_densify_interval, and background and
+  // random_background (the input's). Here they stay at TrainParams's defaults or repeat the owner's
   // value; anything else is refused by check_train_owners, naming both fields.
   TrainParams train;
 };
 
 // Refuses a value in params.train that its owner (see PipelineParams::train)
 // would contradict, naming both fields; `background` is the input's.
-inline void check_train_owners(const PipelineParams& p, const std::array<double, 3>& background) {
+inline void check_train_owners(const PipelineParams& p, const std::array<double, 3>& background,
+                               bool random_background = false) {
   const TrainParams unset;
   auto refuse_if = [](bool conflict, const char* field, const auto& value, const std::string& owner,
                       const auto& owner_value, const auto& default_value) {
@@ -123,6 +124,9 @@ inline void check_train_owners(const PipelineParams& p, const std::array<double,
             unset.min_densify_interval);
   refuse_if(t.background != unset.background && t.background != background, "background", t.background,
             "the input's background (PipelineInput::background)", background, unset.background);
+  refuse_if(t.random_background != unset.random_background && t.random_background != random_background,
+            "random_background", t.random_background, "PipelineInput::random_background", random_background,
+            unset.random_background);
 }
 
 // The external provider is waiting for completed frames.

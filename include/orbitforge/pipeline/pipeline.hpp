@@ -60,7 +60,7 @@ nlohmann::json run_pipeline(const PipelineInput<Scalar>& input, const PipelinePa
   ensure(!out.empty(), "pipeline: no output folder");
   ensure(params.render_stride >= 1, "pipeline: render_stride must be >= 1, got ", params.render_stride);
   ensure(params.iters_g0 >= 1 && params.iters_g1 >= 1, "pipeline: iteration counts must be positive");
-  check_train_owners(params, input.background);
+  check_train_owners(params, input.background, input.random_background);
   std::filesystem::create_directories(out);
   PipelineRun<Scalar> local;
   PipelineRun<Scalar>& run = state ? *state : local;

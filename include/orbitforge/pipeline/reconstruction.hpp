@@ -82,9 +82,17 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
     run.log(label + ": resuming at iteration " + std::to_string(trainer.iteration()));
   }
   const bool trained_now = !trainer.finished();
+  bool floor_said = false;
   while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
     const ShortcutState& sc = pr.shortcuts;
+    if (pr.spared > 0 && !floor_said) {
+      floor_said = true;
+      run.log(label + ": densification at iteration " + std::to_string(pr.iteration) +
+              " would have pruned the model below its floor of " + std::to_string(tp.densify_params.min_gaussians) +
+              " Gaussians; the most opaque stay and training goes on (a background the frames do not share "
+              "drives every opacity down; check --background)");
+    }
     if (pr.iteration == trainer.still_check_iteration()) {
       char m[160];
       std::snprintf(m, sizeof(m), "%s: the field fits the frames %.3f dB better than its bake: %s", label.c_str(),

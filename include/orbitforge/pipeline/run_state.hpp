@@ -64,6 +64,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
       {"median_samples", p.median_samples},
       {"init_points", p.init_points},
       {"scalar_bytes", sizeof(Scalar)}};
+  if (t.random_background) j["random_background"] = true;
   if (t.densify)
     j["densification"] = {{"grad_threshold", d.grad_threshold},
                           {"percent_dense", d.percent_dense},
@@ -73,6 +74,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
                           {"max_screen_radius", d.max_screen_radius},
                           {"reset_opacity", d.reset_opacity},
                           {"max_gaussians", d.max_gaussians},
+                          {"min_gaussians", d.min_gaussians},
                           {"schedule", {s.densify_from, s.densify_until, s.densify_interval, s.opacity_reset_interval}},
                           {"min_interval", t.min_densify_interval}};
   if (t.deformable) {
@@ -118,13 +120,14 @@ struct PipelineRun {
   // params.train with the fields the pipeline owns set from their owners
   // (refused when params.train contradicts them: check_train_owners).
   TrainParams train_params(int iters, bool deformable) const {
-    check_train_owners(params, input->background);
+    check_train_owners(params, input->background, input->random_background);
     TrainParams t = params.train;
     t.iterations = iters;
     t.deformable = deformable;
     t.seed = params.seed;
     t.threads = params.threads;
     t.background = input->background;
+    t.random_background = input->random_background;
     t.min_densify_interval = params.min_densify_interval;
     return t;
   }

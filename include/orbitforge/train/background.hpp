@@ -14,6 +14,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -28,12 +29,17 @@ struct BackgroundParams {
   double min_agreement = 0.9;   // share of border pixels within tolerance of the median
   double snap = 2.0 / 255.0;
   std::array<double, 3> fallback{{0, 0, 0}};  // 3DGS's default background
+  // When the borders disagree the backdrop is part of the scene: train on a
+  // random colour per iteration (TrainParams::random_background) so that the
+  // model explains it; `fallback` is then the colour of every other render.
+  bool random_when_disagreeing = true;
   std::size_t max_samples = 400000;           // border pixels examined (evenly strided beyond this)
 };
 
 struct BackgroundEstimate {
   std::array<double, 3> color{{0, 0, 0}};
   bool from_data = false;   // the borders agreed
+  bool random = false;      // train on a random colour per iteration (borders disagree)
   double agreement = 0;     // share of border pixels within tolerance of the median
   std::array<double, 3> border_median{{0, 0, 0}};
   std::string reason;       // one sentence for reports
@@ -93,7 +99,7 @@ BackgroundEstimate estimate_background(const std::vector<const Image<Scalar>*>& 
     agree += d <= float(p.tolerance) ? 1 : 0;
   }
   e.agreement = double(agree) / double(n);
-  char buf[200];
+  char buf[320];
   if (e.agreement >= p.min_agreement) {
     e.from_data = true;
     e.color = e.border_median;
@@ -108,13 +114,26 @@ BackgroundEstimate estimate_background(const std::vector<const Image<Scalar>*>& 
                   100.0 * e.agreement, p.tolerance);
   } else {
     e.color = p.fallback;
+    e.random = p.random_when_disagreeing;
     std::snprintf(buf, sizeof(buf),
                   "the frames' borders disagree (only %.1f%% of their pixels within %.2f of the median, need %.0f%%); "
-                  "default background",
-                  100.0 * e.agreement, p.tolerance, 100.0 * p.min_agreement);
+                  "%s",
+                  100.0 * e.agreement, p.tolerance, 100.0 * p.min_agreement,
+                  e.random ? "training draws a random background colour each iteration, other renders use the default"
+                           : "default background");
   }
   e.reason = buf;
   return e;
+}
+
+// The background of training iteration `it` with TrainParams::random_background:
+// uniform in [0, 1)^3, drawn from a generator seeded by (seed, it) alone, so a
+// run resumed from a checkpoint draws the same colours.
+inline std::array<double, 3> random_background_at(unsigned seed, int it) {
+  std::seed_seq seq{seed, unsigned(it), 0x6267u};
+  std::mt19937 rng(seq);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  return {{u(rng), u(rng), u(rng)}};
 }
 
 }  // namespace orbitforge

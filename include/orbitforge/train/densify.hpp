@@ -60,6 +60,12 @@ struct DensifyParams {
   // largest mean gradient first. Few training views can otherwise clone a scene
   // up to about one Gaussian per pixel (375k for six 320x240 photographs).
   std::size_t max_gaussians = 0;
+  // A floor: pruning never leaves fewer Gaussians than this; the most opaque of
+  // those it would remove stay. A schedule tuned on clean renders can otherwise
+  // prune a real capture's model to nothing (opacities all driven under
+  // min_opacity by a background the frames do not share), and training could
+  // not recover from an empty scene.
+  std::size_t min_gaussians = 256;
 };
 
 // When things happen, in 1-based iterations (3DGS train.py).
@@ -156,8 +162,9 @@ struct DensifyStats {
 struct DensifyPlan {
   std::vector<std::uint8_t> keep;          // [N_old] 1 = kept
   std::vector<std::size_t> appended_from;  // [N_appended] source index in the old scene
-  // Gaussians cloned, split (parents, removed), and pruned among the others (old ones).
-  std::size_t cloned = 0, split = 0, pruned = 0;
+  // Gaussians cloned, split (parents, removed), and pruned among the others (old
+  // ones); spared: old ones the pruning rules removed but the floor kept.
+  std::size_t cloned = 0, split = 0, pruned = 0, spared = 0;
 
   std::size_t new_size() const {
     std::size_t k = 0;
@@ -293,6 +300,7 @@ DensifyPlan densify_and_prune(GaussianScene<Scalar>& scene, const DensifyStats<S
   }
 
   // Prune old and new.
+  std::vector<std::size_t> pruned_old;
   for (std::size_t i = 0; i < n; ++i) {
     if (!plan.keep[i]) continue;
     bool prune = pruned_by_opacity(i);
@@ -300,16 +308,33 @@ DensifyPlan densify_and_prune(GaussianScene<Scalar>& scene, const DensifyStats<S
       prune = prune || double(stats.max_radius[i]) > params.max_screen_radius || max_scale(scene, i) > world_limit;
     if (prune) {
       plan.keep[i] = 0;
-      ++plan.pruned;
+      pruned_old.push_back(i);
     }
   }
   std::vector<std::uint8_t> add_keep(add.size(), 1);
+  std::size_t kept = 0;
   for (std::size_t j = 0; j < add.size(); ++j) {
     bool prune = !(add.opacity_logits[j] >= logit_min);
     if (size_prune) prune = prune || max_scale(add, j) > world_limit;
     add_keep[j] = prune ? 0 : 1;
     if (!prune) plan.appended_from.push_back(add_from[j]);
+    kept += add_keep[j];
   }
+  for (auto k : plan.keep) kept += k;
+  // The floor: spare the most opaque of the pruned (ties by index, so the choice
+  // is deterministic) until the scene holds min_gaussians again.
+  if (kept < params.min_gaussians && !pruned_old.empty()) {
+    std::stable_sort(pruned_old.begin(), pruned_old.end(), [&](std::size_t a, std::size_t b) {
+      return scene.opacity_logits[a] > scene.opacity_logits[b];
+    });
+    for (std::size_t i : pruned_old) {
+      if (kept >= params.min_gaussians) break;
+      plan.keep[i] = 1;
+      ++plan.spared;
+      ++kept;
+    }
+  }
+  plan.pruned = pruned_old.size() - plan.spared;
 
   // Rewrite the scene: kept old ones in order, then the kept new ones.
   auto rebuild = [&](std::vector<Scalar>& dst, const std::vector<Scalar>& extra, std::size_t stride) {

@@ -19,7 +19,7 @@ namespace orbitforge {
 
 // What one iteration's density control did (zero when it did not densify).
 struct DensifyCounts {
-  std::size_t cloned = 0, split = 0, pruned = 0;
+  std::size_t cloned = 0, split = 0, pruned = 0, spared = 0;  // spared: kept by DensifyParams::min_gaussians
 };
 
 // White background: 3DGS then also resets opacities once at densify_from.
@@ -74,7 +74,7 @@ class DensifyDriver {
     ensure(scene.size() > 0, "Trainer: densification at iteration ", it,
            " pruned every Gaussian (schedule densifying every ", schedule_.densify_interval,
            " iterations, opacity reset every ", schedule_.opacity_reset_interval,
-           "; check the background colour against the frames, or raise TrainParams::min_densify_interval)");
+           "; DensifyParams::min_gaussians is 0, so nothing stopped it)");
     // New row order: kept old rows, then appended rows (zero moments).
     std::vector<std::int64_t> source;
     source.reserve(plan.new_size());
@@ -83,7 +83,7 @@ class DensifyDriver {
     source.resize(plan.new_size(), -1);
     for (int g = 0; g < adam.group_count(); ++g) adam.gather(g, source);
     stats.reset(scene.size());
-    return {plan.cloned, plan.split, plan.pruned};
+    return {plan.cloned, plan.split, plan.pruned, plan.spared};
   }
 
   bool enabled_ = false;

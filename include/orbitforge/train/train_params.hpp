@@ -19,6 +19,11 @@ struct TrainParams {
   unsigned seed = 0;
   int threads = 0;                  // 0 = all hardware threads
   std::array<double, 3> background{{0, 0, 0}};  // white {1,1,1} for the v3d videos
+  // A new uniform random background colour for each iteration's render (the
+  // usual choice for real captures): where no Gaussian covers a pixel the
+  // colour is noise, so the scene must explain every pixel, backdrop included.
+  // `background` stays the colour of every other render (evaluation, bakes).
+  bool random_background = false;
 
   // Learning rates. Positions: exponential decay from init to final over the
   // budget, both times the scene extent (3DGS spatial_lr_scale).

@@ -9,34 +9,21 @@
 //   trainer.train(params.iterations, [](const TrainProgress& p) { ... });
 //   trainer.save_checkpoint("ckpt.bin");
 //
-// One iteration (1-based `it`), as 3DGS train.py does it:
-//   learning rates for `it`; SH degree + 1 at multiples of sh_degree_interval;
-//   next frame of a seeded shuffled order (reshuffled when used up);
-//   render (deformable and it > warmup: DeformedSceneView with the field's offsets at
-//   the frame's t); loss 0.8 L1 + 0.2 (1 - SSIM); backward (into the field through its
-//   vjp, into the canonical Gaussians through base_gradients); Adam steps;
-//   densification statistics, densify/prune (optimizer moments remapped; new
-//   Gaussians start with zero moments) and opacity resets per DensifySchedule;
-//   optionally the still-scene check (bakes a field that fits the frames no better
-//   than its bake, then trains static) and the plateau stop (finished() before
-//   the budget).
-// Differences from 3DGS: the optimizer step comes before densification in the same
-// iteration (3DGS densifies first and skips the step for the new tensors).
+// One iteration (1-based `it`), as 3DGS train.py: learning rates; SH degree raise;
+// the next frame of a seeded shuffled order; render (deformed after the warm-up);
+// loss 0.8 L1 + 0.2 (1 - SSIM); backward; Adam steps; density control and
+// opacity resets; the still-scene check and the plateau stop when enabled. Unlike
+// 3DGS, the optimizer step comes before densification in the same iteration.
 //
 // This class is the loop; each concept it drives has a header of its own:
 // train_frame / train_params / train_progress (data), schedules, frame_order,
 // coarse_to_fine, deformed_pass, gaussian_adam, densify_driver, still_check,
-// plateau_stop, trainer_checkpoint (the state and its checkpoint record).
+// plateau_stop, background, trainer_checkpoint (the state and its record).
 //
-// Determinism: the same frames, initial scene, params and thread count give the same
-// result bit for bit (renderer, loss and network are deterministic per thread count).
-//
-// Checkpoints (save_checkpoint / load_checkpoint) hold the iteration, scene, optimizer
-// moments and steps, RNG and frame-order state, densification statistics and the
-// field with its optimizer; resuming with the same frames, params and thread count
-// continues exactly as an uninterrupted run. Written atomically (temp + rename);
-// the file format is io/checkpoint.hpp's (checkpoint() / restore() give the
-// record itself); a damaged or truncated file is refused whole.
+// Determinism: the same frames, initial scene, params and thread count give the
+// same result bit for bit, and a run resumed from a checkpoint (written
+// atomically; a damaged file is refused whole) continues exactly as an
+// uninterrupted one.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -52,6 +39,7 @@
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/background.hpp"
 #include "orbitforge/train/coarse_to_fine.hpp"
 #include "orbitforge/train/deformed_pass.hpp"
 #include "orbitforge/train/densify.hpp"
@@ -94,9 +82,9 @@ class Trainer {
     s_.extent = frames_.size() > 1 ? camera_extent(cams) : Scalar(0);
     if (!(s_.extent > Scalar(1e-6))) s_.extent = Scalar(1);  // one camera (or all at one place): unit scale
     RenderParams<Scalar> rp;
-    for (int c = 0; c < 3; ++c) rp.background[std::size_t(c)] = Scalar(params.background[std::size_t(c)]);
     rp.threads = params.threads;
     renderer_ = Renderer<Scalar>(rp);
+    set_background(params.background);
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
     s_.stats.reset(scene.size());
     s_.field_adam = Adam<Scalar>(params.adam);
@@ -212,6 +200,7 @@ class Trainer {
     const int level = image_level_at(it);
     const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_.at(frames_, fi, level);
     const bool deforming = deforming_at(it);
+    if (params_.random_background) set_background(random_background_at(params_.seed, it));
     const GaussianSceneGrad<Scalar>* grad = nullptr;
     LossTerms<Scalar> loss;
     LapTimer lap;
@@ -242,12 +231,13 @@ class Trainer {
     last_.render = renderer_.output().frame;
     last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
+    if (params_.random_background) set_background(params_.background);  // every other render: the fixed colour
     step_gaussians(s_.adam, s_.scene, *grad, threads);
     last_.adam_ms = lap();
 
     const DensifyCounts dc = densify_.step(it, level, grad->screen_grad_ndc_norm, renderer_.projected().radius,
                                            s_.scene, s_.stats, s_.adam, s_.extent, s_.rng);
-    last_.cloned += dc.cloned, last_.split += dc.split, last_.pruned += dc.pruned;
+    last_.cloned += dc.cloned, last_.split += dc.split, last_.pruned += dc.pruned, last_.spared += dc.spared;
     last_.densify_ms = lap();
 
     if (s_.field && it == still_check_iteration()) check_still();
@@ -269,6 +259,10 @@ class Trainer {
     last_.frame = fi;
     last_.shortcuts = s_.shortcuts;
     return last_;
+  }
+
+  void set_background(const std::array<double, 3>& c) {
+    for (int k = 0; k < 3; ++k) renderer_.params().background[std::size_t(k)] = Scalar(c[std::size_t(k)]);
   }
 
   // The still-scene check (still_check.hpp); a bake keeps the scene's size and row

@@ -213,7 +213,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"comparison_seconds", comparisons},
                       {"frames", source_frames_json(in)},
                       {"points", points_json(in)},
-                      {"background", {{"color", in.background}, {"reason", in.background_reason}}},
+                      {"background", {{"color", in.background}, {"random", in.random_background}, {"reason", in.background_reason}}},
                       {"cameras", cameras_json(in, run.fit, estimate)},
                       {"coverage", coverage},
                       {"diagnostics", orbit.at("diagnostics")},
