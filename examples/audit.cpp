@@ -3,7 +3,8 @@
 // completion, stage times) with median and P90 rows.
 //
 //   audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [--protocol measured|paper]
-//         [full_pipeline's flags] [--shard i/n] [--report-only] --out DIR
+//         [full_pipeline's flags] [--shard i/n | --shard-count N] [--report-only] --out DIR
+//   audit --write-synthetic DIR [--width W --height H] [--seed S]
 //
 // Each input DIR (a COLMAP folder, as full_pipeline --colmap takes) runs into
 // OUT/<basename of DIR>/ exactly as full_pipeline would, and resumes like it:
@@ -16,18 +17,30 @@
 // --shard i/n takes every n-th input (sorted by path) so n machines can share the
 // work; its tables are audit-<i>-of-<n>.{json,md,csv}, and a later --report-only
 // run over all inputs without --shard writes the combined audit.{json,md,csv}.
+// Without --shard the shard comes from the scheduler when there is one: a Slurm
+// array task (SLURM_ARRAY_TASK_ID, _MIN, _COUNT) or a Kubernetes Indexed Job
+// (JOB_COMPLETION_INDEX, with --shard-count N, the Job's completions); the tables
+// record where it came from (pipeline/audit.hpp, choose_shard).
+// --write-synthetic DIR writes the project's embedded synthetic input as a COLMAP
+// folder (DIR/images, DIR/sparse/0) and exits: an input for trying the audit, and
+// its scheduler tests, on a machine without recorded data.
 // Exit status: 0 every input succeeded, 1 some failed (or wait for external
 // completion), 2 bad arguments.
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
 
 #include "cli.hpp"
+#include "orbitforge/io/colmap.hpp"
+#include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/audit.hpp"
+#include "orbitforge/pipeline/input.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "pipeline_flags.hpp"
 
@@ -39,10 +52,16 @@ namespace {
 
 const std::string kUsage =
     std::string("usage: audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [flags]\n"
-                "             [--shard i/n] [--report-only] --out DIR\n"
+                "             [--shard i/n | --shard-count N] [--report-only] --out DIR\n"
+                "       audit --write-synthetic DIR [--width W --height H] [--seed S]\n"
                 "  (audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound)\n"
                 "  --cameras recorded          each DIR's own model (default; a lab figure when it saw every frame)\n"
-                "  --cameras estimated         COLMAP on DIR/images' source frames alone; DIR's model scores the run\n") +
+                "  --cameras estimated         COLMAP on DIR/images' source frames alone; DIR's model scores the run\n"
+                "  --shard i/n                 every n-th input (sorted), the i-th of them; without it a Slurm array\n"
+                "                              task's SLURM_ARRAY_TASK_ID/_MIN/_COUNT choose the shard\n"
+                "  --shard-count N             with JOB_COMPLETION_INDEX (Kubernetes Indexed Job, 0-based): n = N\n"
+                "  --write-synthetic DIR       write the embedded synthetic input as a COLMAP folder and exit\n"
+                "                              (default 96 x 96; --seed S picks another scene)\n") +
     cli::kPipelineFlagsUsage;
 
 // The folder name an input's outputs go to: the last component of its path.
@@ -53,12 +72,33 @@ std::string input_name(const std::string& dir) {
   return name;
 }
 
+// The embedded synthetic input (full_pipeline's default) as a COLMAP folder that
+// --inputs takes: every frame's PNG and the recorded (noisy) cameras, no points.
+void write_synthetic(const std::string& dir, const cli::PipelineFlags& f) {
+  SyntheticInputParams sp;
+  sp.width = f.width > 0 ? f.width : 96;
+  sp.height = f.height > 0 ? f.height : 96;
+  sp.focal = 160.0 * sp.height / 128.0;  // full_pipeline's field of view
+  if (f.params.seed != 0) sp.seed = f.params.seed;
+  const PipelineInput<S> in = synthetic_pipeline_input<S>(sp, f.params.threads);
+  fs::create_directories(fs::path(dir) / "images");
+  write_colmap_text((fs::path(dir) / "sparse" / "0").string(), in.cameras);
+  for (std::size_t i = 0; i < in.cameras.size(); ++i)
+    write_png((fs::path(dir) / "images" / in.cameras[i].name).string(), in.images[i]);
+  std::fprintf(stderr, "audit: wrote %s to %s\n", in.description.c_str(), dir.c_str());
+}
+
+std::optional<std::string> getenv_lookup(const std::string& name) {
+  const char* v = std::getenv(name.c_str());
+  return v ? std::optional<std::string>(v) : std::nullopt;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   return cli::run([&]() -> int {
     std::vector<std::string> inputs;
-    std::string out, shard_text;
+    std::string out, shard_text, shard_count_text, synthetic_dir;
     cli::PipelineFlags flags;
     flags.holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
     flags.params.compare_g1_paper = flags.params.oracle_bound = true;
@@ -81,6 +121,8 @@ int main(int argc, char** argv) {
       if (f == "--completion") completion_set = true;
       if (cli::parse_pipeline_flag("audit", a, flags)) {
       } else if (f == "--shard") shard_text = a.value();
+      else if (f == "--shard-count") shard_count_text = a.value();
+      else if (f == "--write-synthetic") synthetic_dir = a.value();
       else if (f == "--cameras") {
         cameras = a.value();
         if (cameras != "recorded" && cameras != "estimated")
@@ -97,19 +139,27 @@ int main(int argc, char** argv) {
     }
     cli::end_pipeline_flags(flags);
     const PipelineParams& p = flags.params;
+    if (!synthetic_dir.empty()) {
+      if (!inputs.empty() || !out.empty())
+        throw cli::UsageError("audit: --write-synthetic DIR runs on its own (no --inputs, no --out)");
+      write_synthetic(synthetic_dir, flags);
+      return 0;
+    }
     if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required\n" + kUsage);
     if (out.empty()) throw cli::UsageError("audit: --out DIR is required\n" + kUsage);
     // The oracle reads frames the method would not have: an audit says which completion it measured.
     if (!report_only && !completion_set)
       throw cli::UsageError("audit: name the completion (--completion oracle|perturbed|external|none)\n" + kUsage);
-    AuditShard shard;
-    if (!shard_text.empty()) {
-      try {
-        shard = parse_shard(shard_text);
-      } catch (const Error& e) {
-        throw cli::UsageError(std::string("audit: --shard: ") + e.what());
-      }
+    AuditShardChoice choice;
+    try {
+      choice = choose_shard(shard_text, shard_count_text, getenv_lookup);
+    } catch (const Error& e) {
+      throw cli::UsageError(std::string("audit: shard: ") + e.what());
     }
+    const AuditShard shard = choice.shard;
+    if (choice.source != "none")
+      std::fprintf(stderr, "audit: shard %d/%d from %s (%s)\n", shard.index, shard.count, choice.source.c_str(),
+                   choice.detail.c_str());
     // Outputs go to OUT/<basename>: two inputs with one name would share a folder.
     std::set<std::string> names;
     for (const auto& dir : inputs) {
@@ -168,6 +218,8 @@ int main(int argc, char** argv) {
     nlohmann::json table = audit_table(rows);
     nlohmann::json settings = {{"mode", report_only ? "report-only" : "run"},
                                {"shard", std::to_string(shard.index) + "/" + std::to_string(shard.count)},
+                               {"shard_source", choice.source},
+                               {"shard_detail", choice.detail},
                                {"inputs", mine}};
     if (!report_only) {
       const auto size = cli::working_size(flags);
@@ -182,7 +234,7 @@ int main(int argc, char** argv) {
       settings["threads"] = p.threads;
     }
     table["audit"] = settings;
-    const std::string stem = shard_text.empty() ? std::string("audit")
+    const std::string stem = choice.source == "none" ? std::string("audit")
                                                 : "audit-" + std::to_string(shard.index) + "-of-" +
                                                       std::to_string(shard.count);
     const std::string md = audit_markdown(table);

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The example programs' command lines: every program answers --help with status 0
 # and a usage line; sizes a user types are refused before anything is allocated;
-# fit_orbit's --frames counts video frames, registered or not, as the pipeline does.
+# fit_orbit's --frames counts video frames, registered or not, as the pipeline does;
+# audit names a malformed scheduler variable (its shard) and exits 2.
 #
 #   scripts/check_cli.sh BUILD/examples
 set -euo pipefail
@@ -33,6 +34,11 @@ ms=$(( ($(date +%s%N) - start) / 1000000 ))
 expect_refusal 2 "--views" "$bin/full_pipeline" --views 100000000 --out "$work/run"
 expect_refusal 2 "--frames" "$bin/fit_orbit" --synthetic --frames '' --out "$work/o.json"
 [[ ! -e "$work/o.json" ]] || fail "a refused fit_orbit left orbit.json"
+# The audit's shard from a scheduler: a bad variable is named, status 2, before any work.
+expect_refusal 2 "SLURM_ARRAY_TASK_ID" env SLURM_ARRAY_TASK_ID=x SLURM_ARRAY_TASK_MIN=0 SLURM_ARRAY_TASK_COUNT=2 \
+  "$bin/audit" --inputs "$work/none" --completion oracle --out "$work/audit"
+expect_refusal 2 "--shard-count" env -u SLURM_ARRAY_TASK_ID JOB_COMPLETION_INDEX=0 \
+  "$bin/audit" --inputs "$work/none" --completion oracle --out "$work/audit"
 
 # A 91-frame video whose model registered every frame but 29-33: frames 1-33 are
 # the 28 registered ones, and the 5 others are named.

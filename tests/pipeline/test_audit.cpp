@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <set>
 #include <sstream>
@@ -343,4 +344,145 @@ TEST_CASE("read_audit_row reads report.json and the orbit radius; missing files 
   REQUIRE(t["rows"][2]["status"] == "failed");
   REQUIRE(value(t, "median", "radius") == 2.75);
   fs::remove_all(root);
+}
+
+namespace {
+
+// A fixed environment for choose_shard: no setenv, so no races with other tests.
+EnvLookup env_of(std::map<std::string, std::string> vars) {
+  return [vars = std::move(vars)](const std::string& name) -> std::optional<std::string> {
+    const auto it = vars.find(name);
+    if (it == vars.end()) return std::nullopt;
+    return it->second;
+  };
+}
+
+void require_shard(const AuditShardChoice& c, int index, int count, const std::string& source) {
+  INFO(c.source << " " << c.shard.index << "/" << c.shard.count << " (" << c.detail << ")");
+  REQUIRE(c.shard.index == index);
+  REQUIRE(c.shard.count == count);
+  REQUIRE(c.source == source);
+}
+
+}  // namespace
+
+TEST_CASE("choose_shard: no flag and no scheduler is the whole list", "[pipeline][audit]") {
+  require_shard(choose_shard("", "", env_of({})), 1, 1, "none");
+  // A plain (non-array) Slurm job is not sharded.
+  require_shard(choose_shard("", "", env_of({{"SLURM_JOB_ID", "77"}})), 1, 1, "none");
+  REQUIRE_THROWS_WITH(choose_shard("", "4", env_of({})), Catch::Contains("JOB_COMPLETION_INDEX"));
+}
+
+TEST_CASE("choose_shard: Slurm array tasks, numbered from 0 or 1 or in steps", "[pipeline][audit]") {
+  // --array=0-3 and --array=1-4 give the same four shards.
+  for (int min : {0, 1}) {
+    for (int k = 0; k < 4; ++k) {
+      const auto env = env_of({{"SLURM_ARRAY_TASK_ID", std::to_string(min + k)},
+                               {"SLURM_ARRAY_TASK_MIN", std::to_string(min)},
+                               {"SLURM_ARRAY_TASK_MAX", std::to_string(min + 3)},
+                               {"SLURM_ARRAY_TASK_COUNT", "4"}});
+      const AuditShardChoice c = choose_shard("", "", env);
+      require_shard(c, k + 1, 4, "slurm");
+      REQUIRE_THAT(c.detail, Catch::Contains("SLURM_ARRAY_TASK_ID=" + std::to_string(min + k)));
+    }
+  }
+  // --array=3-9:3: tasks 3, 6, 9.
+  const auto stepped = [](const std::string& id) {
+    return env_of({{"SLURM_ARRAY_TASK_ID", id},
+                   {"SLURM_ARRAY_TASK_MIN", "3"},
+                   {"SLURM_ARRAY_TASK_MAX", "9"},
+                   {"SLURM_ARRAY_TASK_COUNT", "3"},
+                   {"SLURM_ARRAY_TASK_STEP", "3"}});
+  };
+  require_shard(choose_shard("", "", stepped("6")), 2, 3, "slurm");
+  require_shard(choose_shard("", "", stepped("9")), 3, 3, "slurm");
+  REQUIRE_THROWS_WITH(choose_shard("", "", stepped("7")), Catch::Contains("SLURM_ARRAY_TASK_ID 7"));
+  // A list with gaps (--array=1,3,7): Slurm sets STEP=1, MIN=1, MAX=7, COUNT=3;
+  // refused in every task, also those whose ID would fit.
+  for (const char* id : {"1", "3", "7"})
+    REQUIRE_THROWS_WITH(choose_shard("", "", env_of({{"SLURM_ARRAY_TASK_ID", id},
+                                                     {"SLURM_ARRAY_TASK_MIN", "1"},
+                                                     {"SLURM_ARRAY_TASK_MAX", "7"},
+                                                     {"SLURM_ARRAY_TASK_COUNT", "3"},
+                                                     {"SLURM_ARRAY_TASK_STEP", "1"}})),
+                        Catch::Contains("SLURM_ARRAY_TASK_MAX"));
+  // A contiguous list (--array=4,5,6) is a range.
+  require_shard(choose_shard("", "", env_of({{"SLURM_ARRAY_TASK_ID", "5"},
+                                             {"SLURM_ARRAY_TASK_MIN", "4"},
+                                             {"SLURM_ARRAY_TASK_MAX", "6"},
+                                             {"SLURM_ARRAY_TASK_COUNT", "3"},
+                                             {"SLURM_ARRAY_TASK_STEP", "1"}})),
+                2, 3, "slurm");
+  // A matching --shard-count is accepted, a different one refused.
+  const auto task2 = env_of({{"SLURM_ARRAY_TASK_ID", "2"}, {"SLURM_ARRAY_TASK_MIN", "1"}, {"SLURM_ARRAY_TASK_COUNT", "2"}});
+  require_shard(choose_shard("", "2", task2), 2, 2, "slurm");
+  REQUIRE_THROWS_WITH(choose_shard("", "3", task2), Catch::Contains("SLURM_ARRAY_TASK_COUNT"));
+}
+
+TEST_CASE("choose_shard: Kubernetes Indexed Jobs need --shard-count", "[pipeline][audit]") {
+  require_shard(choose_shard("", "3", env_of({{"JOB_COMPLETION_INDEX", "0"}})), 1, 3, "kubernetes");
+  require_shard(choose_shard("", "3", env_of({{"JOB_COMPLETION_INDEX", "2"}})), 3, 3, "kubernetes");
+  REQUIRE_THROWS_WITH(choose_shard("", "", env_of({{"JOB_COMPLETION_INDEX", "2"}})),
+                      Catch::Contains("JOB_COMPLETION_INDEX") && Catch::Contains("--shard-count"));
+  REQUIRE_THROWS_WITH(choose_shard("", "3", env_of({{"JOB_COMPLETION_INDEX", "3"}})),
+                      Catch::Contains("JOB_COMPLETION_INDEX 3"));
+}
+
+TEST_CASE("choose_shard: an explicit --shard wins over the environment", "[pipeline][audit]") {
+  const auto both = env_of({{"SLURM_ARRAY_TASK_ID", "0"},
+                            {"SLURM_ARRAY_TASK_MIN", "0"},
+                            {"SLURM_ARRAY_TASK_COUNT", "4"},
+                            {"JOB_COMPLETION_INDEX", "1"}});
+  const AuditShardChoice c = choose_shard("3/5", "", both);
+  require_shard(c, 3, 5, "flag");
+  REQUIRE(c.detail == "--shard 3/5");
+  // Even over malformed variables: the flag is the user's answer.
+  require_shard(choose_shard("1/2", "", env_of({{"SLURM_ARRAY_TASK_ID", "x"}})), 1, 2, "flag");
+  REQUIRE_THROWS_WITH(choose_shard("1/2", "3", env_of({})), Catch::Contains("--shard-count 3"));
+  REQUIRE_THROWS_AS(choose_shard("0/2", "", env_of({})), Error);
+}
+
+TEST_CASE("choose_shard: malformed or inconsistent variables are named", "[pipeline][audit]") {
+  using Vars = std::map<std::string, std::string>;
+  const Vars good = {{"SLURM_ARRAY_TASK_ID", "1"}, {"SLURM_ARRAY_TASK_MIN", "0"}, {"SLURM_ARRAY_TASK_COUNT", "2"}};
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"SLURM_ARRAY_TASK_ID", "one"},    {"SLURM_ARRAY_TASK_ID", "-1"},     {"SLURM_ARRAY_TASK_ID", ""},
+      {"SLURM_ARRAY_TASK_ID", " 1"},     {"SLURM_ARRAY_TASK_MIN", "1.0"},   {"SLURM_ARRAY_TASK_COUNT", "0"},
+      {"SLURM_ARRAY_TASK_COUNT", "2x"},  {"SLURM_ARRAY_TASK_STEP", "0"},    {"SLURM_ARRAY_TASK_ID", "99999999999999999999"}};
+  for (const auto& [name, text] : bad) {
+    Vars v = good;
+    v[name] = text;
+    INFO(name << "='" << text << "'");
+    REQUIRE_THROWS_WITH(choose_shard("", "", env_of(v)), Catch::Contains(name));
+  }
+  for (const char* missing : {"SLURM_ARRAY_TASK_MIN", "SLURM_ARRAY_TASK_COUNT"}) {
+    Vars v = good;
+    v.erase(missing);
+    REQUIRE_THROWS_WITH(choose_shard("", "", env_of(v)), Catch::Contains(missing));
+  }
+  // ID below MIN, ID past the last task.
+  REQUIRE_THROWS_WITH(choose_shard("", "", env_of({{"SLURM_ARRAY_TASK_ID", "0"},
+                                                   {"SLURM_ARRAY_TASK_MIN", "1"},
+                                                   {"SLURM_ARRAY_TASK_COUNT", "2"}})),
+                      Catch::Contains("SLURM_ARRAY_TASK_MIN"));
+  REQUIRE_THROWS_WITH(choose_shard("", "", env_of({{"SLURM_ARRAY_TASK_ID", "2"},
+                                                   {"SLURM_ARRAY_TASK_MIN", "0"},
+                                                   {"SLURM_ARRAY_TASK_COUNT", "2"}})),
+                      Catch::Contains("SLURM_ARRAY_TASK_ID 2"));
+  Vars both = good;
+  both["JOB_COMPLETION_INDEX"] = "0";
+  REQUIRE_THROWS_WITH(choose_shard("", "2", env_of(both)),
+                      Catch::Contains("SLURM_ARRAY_TASK_ID") && Catch::Contains("JOB_COMPLETION_INDEX"));
+  for (const char* text : {"", "-1", "a", "1e3"})
+    REQUIRE_THROWS_WITH(choose_shard("", "3", env_of({{"JOB_COMPLETION_INDEX", text}})),
+                        Catch::Contains("JOB_COMPLETION_INDEX"));
+  REQUIRE_THROWS_WITH(choose_shard("", "0", env_of({{"JOB_COMPLETION_INDEX", "0"}})),
+                      Catch::Contains("--shard-count"));
+}
+
+TEST_CASE("audit markdown names the shard's source", "[pipeline][audit]") {
+  json t = audit_table({});
+  REQUIRE_THAT(audit_markdown(t), !Catch::Contains("Shard "));
+  t["audit"] = {{"shard", "2/4"}, {"shard_source", "slurm"}, {"shard_detail", "SLURM_ARRAY_TASK_ID=1"}};
+  REQUIRE_THAT(audit_markdown(t), Catch::Contains("Shard 2/4 from slurm (SLURM_ARRAY_TASK_ID=1)"));
 }
