@@ -20,7 +20,7 @@
 // Without --shard the shard comes from the scheduler when there is one: a Slurm
 // array task (SLURM_ARRAY_TASK_ID, _MIN, _COUNT) or a Kubernetes Indexed Job
 // (JOB_COMPLETION_INDEX, with --shard-count N, the Job's completions); the tables
-// record where it came from (pipeline/audit.hpp, choose_shard).
+// record where it came from (audit/audit_shard.hpp, choose_shard).
 // --write-synthetic DIR writes the project's embedded synthetic input as a COLMAP
 // folder (DIR/images, DIR/sparse/0) and exits: an input for trying the audit, and
 // its scheduler tests, on a machine without recorded data.
@@ -39,7 +39,8 @@
 #include "cli.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/image_io.hpp"
-#include "orbitforge/pipeline/audit.hpp"
+#include "orbitforge/audit/audit_shard.hpp"
+#include "orbitforge/audit/audit_table.hpp"
 #include "orbitforge/pipeline/input.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "pipeline_flags.hpp"

@@ -24,7 +24,7 @@ fi
 target_of() {
   case "$1" in
     orbitforge/io/*) echo io ;;
-    orbitforge/pipeline/* | orbitforge/orbitforge.hpp) echo pipeline ;;
+    orbitforge/pipeline/* | orbitforge/audit/* | orbitforge/orbitforge.hpp) echo pipeline ;;
     *) echo core ;;
   esac
 }

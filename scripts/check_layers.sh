@@ -4,7 +4,7 @@
 # a later one. Prints every violation and exits 1 when there is one.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-layers=(core image geometry nn splat deform io train metrics pipeline)
+layers=(core image geometry nn splat deform io train metrics pipeline audit)
 rank() { local i; for i in "${!layers[@]}"; do [ "${layers[$i]}" = "$1" ] && { echo "$i"; return; }; done; echo -1; }
 bad=0
 for dir in include/orbitforge/*/; do

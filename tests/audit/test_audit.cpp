@@ -1,4 +1,4 @@
-// The audit table (pipeline/audit.hpp) on fabricated report.json objects with
+// The audit table (audit/audit_table.hpp) and shard choice (audit/audit_shard.hpp) on fabricated report.json objects with
 // known values. Does not include pipeline.hpp: this file compiles in seconds.
 #include <catch2/catch.hpp>
 
@@ -10,7 +10,8 @@
 #include <set>
 #include <sstream>
 
-#include "orbitforge/pipeline/audit.hpp"
+#include "orbitforge/audit/audit_shard.hpp"
+#include "orbitforge/audit/audit_table.hpp"
 
 using namespace orbitforge;
 using nlohmann::json;
