@@ -45,7 +45,8 @@ struct Worst {
 };
 
 template <class S>
-Worst compare(const GaussianScene<S>& a, const GaussianScene<S>& b, int fractional_bits) {
+Worst compare(const GaussianScene<S>& a, const GaussianScene<S>& b, int fractional_bits,
+              const SpzOptions& options = {}) {
   REQUIRE(a.size() == b.size());
   REQUIRE(a.sh_degree == b.sh_degree);
   // Half a step of each quantiser, plus the rounding of the scalar type.
@@ -57,8 +58,8 @@ Worst compare(const GaussianScene<S>& a, const GaussianScene<S>& b, int fraction
   // Stored components: half of sqrt(1/2)/511; the rebuilt largest one (>= 1/2) moves
   // by at most sum |q_i| d / q_max <= (3/2) d / (1/2) = 3 d.
   const double rot_bound = 3.0 * 0.5 * std::sqrt(0.5) / 511.0 + slack;
-  const double sh1_bound = 0.5 * spz_sh1_bucket / 128.0 + slack;
-  const double sh_rest_bound = 0.5 * spz_sh_rest_bucket / 128.0 + slack;
+  const double sh1_bound = 0.5 * double(1 << (8 - options.sh1_bits)) / 128.0 + slack;
+  const double sh_rest_bound = 0.5 * double(1 << (8 - options.sh_rest_bits)) / 128.0 + slack;
   Worst w;
   const int K = a.sh_coefficients();
   for (std::size_t g = 0; g < a.size(); ++g) {
@@ -140,6 +141,21 @@ TEMPLATE_TEST_CASE("spz: a random scene round-trips within the format's quantisa
     // The SPZ is much smaller than the float PLY (62 floats a Gaussian at degree 3).
     if (degree == 3) CHECK(bytes.size() * 4 < 300 * 62 * 4);
   }
+}
+
+TEST_CASE("spz: more SH bits keep the SH closer and cost size", "[spz]") {
+  const auto scene = spz_test::random_scene<double>(400, 3, 12u);
+  for (const SpzOptions o : {SpzOptions{8, 8}, SpzOptions{6, 5}, SpzOptions{3, 2}}) {
+    INFO("SH bits " << o.sh1_bits << ", " << o.sh_rest_bits);
+    const auto back = read_spz_from_memory<double>(spz_bytes(scene, o), "bits.spz");
+    const auto w = spz_test::compare(scene, back, spz_default_fractional_bits, o);
+    CHECK(w.sh1 <= 1.0);
+    CHECK(w.sh_rest <= 1.0);
+    CHECK(w.sh1 > 0.5);
+    CHECK(w.sh_rest > 0.5);
+  }
+  CHECK(spz_bytes(scene, SpzOptions{8, 8}).size() > spz_bytes(scene).size());
+  require_error([&] { spz_payload(scene, SpzOptions{0, 4}); }, {"SH bits must be 1..8"});
 }
 
 TEST_CASE("spz: files round-trip through write_spz and read_spz", "[spz]") {
