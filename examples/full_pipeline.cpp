@@ -1,5 +1,5 @@
 // full_pipeline: the whole method, from a source video to a closed-orbit
-// Gaussian Splatting scene (final.ply) with a report.
+// Gaussian Splatting scene (final.ply, and final.spz for web viewers) with a report.
 //
 //   full_pipeline --video FILE | --images DIR | --colmap DIR | --transforms FILE [--images DIR]
 //                 | --images DIR --npy-extrinsics F --npy-intrinsics F
@@ -213,8 +213,8 @@ int main(int argc, char** argv) {
                  out.c_str(), protocol_name(flags.protocol), p.completion.c_str());
     const nlohmann::json r = run_pipeline(input, p, out, nullptr, &run);
     std::cout << report_markdown(r);
-    std::fprintf(stderr, "full_pipeline: done; report in %s/report.md, scene in %s/final.ply\n", out.c_str(),
-                 out.c_str());
+    std::fprintf(stderr, "full_pipeline: done; report in %s/report.md, scene in %s/final.ply (and final.spz)\n",
+                 out.c_str(), out.c_str());
     return 0;
   } catch (const cli::UsageError& e) {
     std::cerr << e.what() << "\n" << kUsage;

@@ -1,11 +1,13 @@
 // ply_tool: inspect and convert Gaussian splat files (.ply in the INRIA 3DGS layout,
-// antimatter15 .splat).
+// antimatter15 .splat, Niantic .spz).
 //
+//   ply_tool --help                    prints this usage on stdout (exit 0)
 //   ply_tool info FILE                 count, SH degree and per-attribute statistics
 //                                      (min / max / mean, count of non-finite values)
 //                                      as one JSON object
-//   ply_tool convert IN OUT            converts by extension (.ply <-> .splat; .splat
-//                                      is lossy: see io/splat_format.hpp)
+//   ply_tool convert IN OUT            converts by extension between .ply, .splat and
+//                                      .spz (.splat and .spz are lossy: see
+//                                      io/splat_format.hpp and io/spz.hpp)
 //   ply_tool dump FILE [FIRST [COUNT]] prints Gaussians as JSON lines with the values
 //                                      as stored (PLY names, f_rest channel-major)
 //   ply_tool random N DEGREE SEED OUT  writes a random scene (for format checks)
@@ -14,6 +16,8 @@
 //                                      camera of a camera file (orbit.json, a list),
 //                                      or cameras FIRST..LAST of it, and how many no
 //                                      camera keeps, as one JSON object
+// Bad usage exits 2 with a message naming the command or argument; bad input 1.
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
@@ -25,6 +29,7 @@
 
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/splat_format.hpp"
+#include "orbitforge/io/spz.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/splat/project.hpp"
 #include "cli.hpp"
@@ -39,14 +44,16 @@ bool ends_with(const std::string& s, const std::string& suffix) {
 
 GaussianScene<float> load(const std::string& path) {
   if (ends_with(path, ".splat")) return read_splat<float>(path);
+  if (ends_with(path, ".spz")) return read_spz<float>(path);
   if (ends_with(path, ".ply")) return read_ply<float>(path);
-  fail(path, ": unknown extension (expected .ply or .splat)");
+  fail(path, ": unknown extension (expected .ply, .splat or .spz)");
 }
 
 void save(const std::string& path, const GaussianScene<float>& s) {
   if (ends_with(path, ".splat")) return write_splat(path, s);
+  if (ends_with(path, ".spz")) return write_spz(path, s);
   if (ends_with(path, ".ply")) return write_ply(path, s);
-  fail(path, ": unknown extension (expected .ply or .splat)");
+  fail(path, ": unknown extension (expected .ply, .splat or .spz)");
 }
 
 nlohmann::json stats(const std::vector<float>& v, std::size_t stride, std::size_t component) {
@@ -153,12 +160,17 @@ int visible(const std::string& path, const std::string& cameras_path, std::size_
   return 0;
 }
 
-int usage() {
-  std::cerr << "usage: ply_tool info FILE\n"
-               "       ply_tool convert IN OUT        (.ply <-> .splat)\n"
-               "       ply_tool dump FILE [FIRST [COUNT]]\n"
-               "       ply_tool random N DEGREE SEED OUT\n"
-               "       ply_tool visible FILE CAMERAS.json [FIRST LAST]\n";
+const char* const usage_text =
+    "usage: ply_tool info FILE\n"
+    "       ply_tool convert IN OUT        (.ply, .splat, .spz by extension)\n"
+    "       ply_tool dump FILE [FIRST [COUNT]]\n"
+    "       ply_tool random N DEGREE SEED OUT\n"
+    "       ply_tool visible FILE CAMERAS.json [FIRST LAST]\n"
+    "       ply_tool --help\n";
+
+// Bad usage: the message names what was wrong, then the usage (exit 2).
+int usage_error(const std::string& what) {
+  std::cerr << "ply_tool: " << what << "\n" << usage_text;
   return 2;
 }
 
@@ -166,8 +178,16 @@ int usage() {
 
 int main(int argc, char** argv) {
   try {
-    if (argc < 3) return usage();
+    if (argc == 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
+      std::cout << usage_text;
+      return 0;
+    }
+    if (argc < 2) return usage_error("no command given");
     const std::string cmd = argv[1];
+    if (!cmd.empty() && cmd[0] == '-') return usage_error("unknown option '" + cmd + "'");
+    for (int i = 2; i < argc; ++i)
+      if (argv[i][0] == '-' && argv[i][1] != '\0' && !std::isdigit(static_cast<unsigned char>(argv[i][1])))
+        return usage_error("unknown option '" + std::string(argv[i]) + "' for '" + cmd + "'");
     if (cmd == "info" && argc == 3) return info(argv[2]);
     if (cmd == "convert" && argc == 4) {
       save(argv[3], load(argv[2]));
@@ -183,7 +203,9 @@ int main(int argc, char** argv) {
     if (cmd == "visible" && (argc == 4 || argc == 6))
       return visible(argv[2], argv[3], argc == 6 ? std::stoull(argv[4]) : 0,
                      argc == 6 ? std::stoull(argv[5]) : std::numeric_limits<std::size_t>::max());
-    return usage();
+    for (const char* known : {"info", "convert", "dump", "random", "visible"})
+      if (cmd == known) return usage_error("wrong number of arguments for '" + cmd + "' (" + std::to_string(argc - 2) + " given)");
+    return usage_error("unknown command '" + cmd + "'");
   } catch (const std::exception& e) {
     std::cerr << "ply_tool: " << cli::describe(e) << "\n";
     return 1;

@@ -13,7 +13,11 @@
 #      orbitforge read (to the printed precision);
 #   3. ours.splat (written by orbitforge) -> splat-transform -> splat.ply: must agree
 #      with orbitforge's own reading of ours.splat within the 8-bit quantisation;
-#   4. splat-transform --summary on ours.ply prints its per-column statistics.
+#   4. ours.spz (written by orbitforge) -> splat-transform -> spz.theirs.ply: must agree
+#      with orbitforge's own reading of ours.spz to float precision, and with ours.ply
+#      within the SPZ quantisation steps; ours.ply -> splat-transform -> theirs.spz
+#      (version 3), read by orbitforge: within the same steps of ours.ply;
+#   5. splat-transform --summary on ours.ply prints its per-column statistics.
 # Outside CI (CI unset or "false") it exits 0 with "skipped: ..." when node/npm or
 # python3 are missing or the registry is unreachable; with CI=true it installs
 # node/npm and python3 with apt-get when missing and fails instead of skipping.
@@ -183,7 +187,72 @@ st "$WORK/ours.splat" "$WORK/splat.theirs.ply"
 # about one byte step (1/128); allow two.
 compare "$WORK/ours_from_splat.ply" "$WORK/splat.theirs.ply" 1e-5 0.016
 
+# quantised A.ply B.ply SH1 SHREST: B is A through SPZ: every value within half a
+# quantisation step of the format (io/spz.hpp): means 1/4096 (12 fractional bits),
+# log scales 1/16, opacity 1/255 (compared as sigmoid), DC colour 1/(0.15*255),
+# rotations sqrt(1/2)/511 per stored component (3x for the rebuilt largest one, as
+# unit quaternions up to sign); SH within SH1/128 (degree 1) and SHREST/128
+# (degrees 2-3), which depend on the writer's bits.
+quantised() {
+  "$TOOL" dump "$1" >"$WORK/a.jsonl"
+  "$TOOL" dump "$2" >"$WORK/b.jsonl"
+  python3 - "$WORK/a.jsonl" "$WORK/b.jsonl" "$1" "$2" "$3" "$4" <<'EOF'
+import json, math, sys
+sh1, sh_rest = float(sys.argv[5]), float(sys.argv[6])
+a = [json.loads(l) for l in open(sys.argv[1])]
+b = [json.loads(l) for l in open(sys.argv[2])]
+if len(a) != len(b):
+    sys.exit(f"FAIL: count {len(a)} in {sys.argv[3]} vs {len(b)} in {sys.argv[4]}")
+rest = sum(1 for k in a[0] if k.startswith('f_rest_')) // 3 if a else 0
+slack = 1e-5
+def bound(k):
+    if k in ('x', 'y', 'z'): return 0.5 / 4096
+    if k.startswith('scale_'): return 0.5 / 16
+    if k.startswith('f_dc_'): return 0.5 / (0.15 * 255)
+    if k.startswith('f_rest_'): return (sh1 if int(k[7:]) % rest < 3 else sh_rest) / 128
+    raise KeyError(k)
+sig = lambda v: 1 / (1 + math.exp(-v))
+worst = (0.0, None)
+for ga, gb in zip(a, b):
+    qa = [ga[f'rot_{i}'] for i in range(4)]
+    qb = [gb[f'rot_{i}'] for i in range(4)]
+    na, nb = math.sqrt(sum(v * v for v in qa)), math.sqrt(sum(v * v for v in qb))
+    s = 1.0 if sum(x * y for x, y in zip(qa, qb)) >= 0 else -1.0
+    errs = {f'rot_{i}': (abs(qa[i] / na - s * qb[i] / nb), 3 * 0.5 * math.sqrt(0.5) / 511) for i in range(4)}
+    errs['opacity'] = (abs(sig(ga['opacity']) - sig(gb['opacity'])), 0.5 / 255)
+    for k, v in ga.items():
+        if k == 'index' or k.startswith('rot_') or k == 'opacity':
+            continue
+        errs[k] = (abs(v - gb[k]), bound(k))
+    for k, (e, lim) in errs.items():
+        r = e / (lim + slack)
+        if r > worst[0]:
+            worst = (r, (ga['index'], k, ga[k], gb[k], lim))
+        if r > 1:
+            sys.exit(f"FAIL: Gaussian {ga['index']} {k}: {ga[k]!r} in {sys.argv[3]} vs {gb[k]!r} in {sys.argv[4]}: "
+                     f"differs by {e:.3g}, more than the SPZ step allows ({lim:.3g})")
+r, at = worst
+print(f"  ok: {len(a)} Gaussians within the SPZ quantisation; largest difference {r:.2f} of its bound"
+      + (f" (Gaussian {at[0]} {at[1]}: {at[2]:.7g} vs {at[3]:.7g}, bound {at[4]:.3g})" if at else ""))
+EOF
+}
+
+echo "== orbitforge .spz -> splat-transform -> PLY"
+"$TOOL" convert "$WORK/ours.ply" "$WORK/ours.spz"
+"$TOOL" convert "$WORK/ours.spz" "$WORK/ours_from_spz.ply"  # orbitforge's own reading
+st "$WORK/ours.spz" "$WORK/spz.theirs.ply"
+# Both decode the same bytes; splat-transform also turns the format's RUB axes into PLY's.
+compare "$WORK/ours_from_spz.ply" "$WORK/spz.theirs.ply" 1e-5 1e-5
+# orbitforge keeps 6 and 5 SH bits: steps of 4/128 and 8/128.
+quantised "$WORK/ours.ply" "$WORK/spz.theirs.ply" 2 4
+echo "== orbitforge PLY -> splat-transform -> .spz (version 3) -> orbitforge"
+st "$WORK/ours.ply" --spz-version 3 "$WORK/theirs.spz"
+"$TOOL" convert "$WORK/theirs.spz" "$WORK/theirs_spz.ply"
+# splat-transform keeps 5 and 4 (steps 8/128 and 16/128) and rounds twice (to a
+# byte, then to the step): half a step and half a byte.
+quantised "$WORK/ours.ply" "$WORK/theirs_spz.ply" 4.5 8.5
+
 echo "== splat-transform --summary of orbitforge's PLY"
 "$ST" "$WORK/ours.ply" --summary null 2>&1 | grep -E '^\*\*Row Count|^\| (Column|x|y|z|opacity|scale_0|rot_0|f_dc_0|f_rest_44) ' || true
 
-echo "PASS: splat-transform reads orbitforge's PLY and .splat files"
+echo "PASS: splat-transform reads orbitforge's PLY, .splat and .spz files; orbitforge reads its .spz"

@@ -116,6 +116,7 @@ PipelineParams interrupt_g1(const fs::path& dir) {
   copy_run(oracle_run(), dir);
   fs::remove(dir / "stages" / "g1.json");
   fs::remove(dir / "final.ply");
+  fs::remove(dir / "final.spz");
   fs::remove_all(dir / "g1");
   fs::remove_all(dir / "R1");
   PipelineParams p = oracle_params();
@@ -143,6 +144,15 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
   for (const char* ply : {"gmed0.ply", "final.ply"}) {
     const auto s = read_ply<float>((dir / ply).string());
     CHECK(s.size() > 100);
+  }
+  {  // final.spz: the same scene, quantised (means on the format's 1/4096 grid)
+    const auto ply = read_ply<float>((dir / "final.ply").string());
+    const auto spz = read_spz<float>((dir / "final.spz").string());
+    REQUIRE(spz.size() == ply.size());
+    CHECK(spz.sh_degree == ply.sh_degree);
+    for (std::size_t i = 0; i < ply.means.size(); i += 97)
+      CHECK(std::abs(spz.means[i] - ply.means[i]) <= 0.5f / 4096 + 1e-5f * std::abs(ply.means[i]));
+    CHECK(fs::file_size(dir / "final.spz") * 4 < fs::file_size(dir / "final.ply"));
   }
   for (const char* ck : {"g0/checkpoint.bin", "g1/checkpoint.bin", "g1_paper/checkpoint.bin", "bound/checkpoint.bin"}) {
     INFO(ck);

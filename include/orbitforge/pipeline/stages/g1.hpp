@@ -1,6 +1,7 @@
 #pragma once
 // Stage 4, g1: the second reconstruction, its bake and R1 -> g1/checkpoint.bin,
-// g1/frames.json, final.ply, R1/NNNN.png. And two comparisons an audit may ask
+// g1/frames.json, final.ply (and final.spz, the same scene in the web viewers'
+// compressed format, about a tenth of the size), R1/NNNN.png. And two comparisons an audit may ask
 // for (PipelineParams::compare_g1_paper, oracle_bound), trained the same way:
 //
 //   g1_paper  the paper's G1: deformable, on the paper's V_hat (R0's arc renders
@@ -25,6 +26,7 @@
 
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/ply.hpp"
+#include "orbitforge/io/spz.hpp"
 #include "orbitforge/pipeline/completion.hpp"
 #include "orbitforge/pipeline/reconstruction.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
@@ -136,7 +138,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
   settings["render_stride"] = p.render_stride;
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
   run.keys["g1"] = key;
-  std::vector<std::string> outputs = {"final.ply"};
+  std::vector<std::string> outputs = {"final.ply", "final.spz"};
   if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/frames.json"});
   for (const auto& f : orbit_view_files(run, "R1")) outputs.push_back(f);
   if (run.stage_current("g1", key, outputs)) return;
@@ -150,6 +152,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
     final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1");
   }
   write_ply((out / "final.ply").string(), final_scene);
+  write_spz((out / "final.spz").string(), final_scene);
   render_orbit_views(run, final_scene, "R1", "R1");
   finish_stage(run, "g1", key, t0, settings, outputs);
 }
