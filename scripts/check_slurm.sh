@@ -19,15 +19,9 @@ cd "$(dirname "$0")/.."
 AUDIT=$(realpath -m "${1:-build/examples/audit}")
 start=$(date +%s)
 
-in_ci() { [ -n "${CI:-}" ] && [ "${CI}" != "false" ]; }
-skip() {
-  if in_ci; then
-    echo "FAIL: $1 (CI=$CI: the Slurm check must run)"
-    exit 1
-  fi
-  echo "skipped: $1"
-  exit 0
-}
+CHECK_NAME=Slurm
+# shellcheck source=scripts/check_lib.sh
+source scripts/check_lib.sh  # the working folder is the repository root here
 fail() {
   echo "FAIL: $*"
   exit 1

@@ -27,26 +27,11 @@ ROOT=$(pwd)
 BUILD_DIR=${BUILD_DIR:-build-splat-transform}
 PACKAGE=${SPLAT_TRANSFORM_PACKAGE:-@playcanvas/splat-transform}
 
-in_ci() { [ -n "${CI:-}" ] && [ "${CI}" != "false" ]; }
-skip() {
-  if in_ci; then
-    echo "FAIL: $1 (CI=$CI: the splat-transform check must run)"
-    exit 1
-  fi
-  echo "skipped: $1"
-  exit 0
-}
-apt_install() {
-  local sudo=""
-  [ "$(id -u)" -eq 0 ] || sudo="sudo"
-  echo "== installing $* with apt-get"
-  $sudo apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "$@"
-}
+CHECK_NAME=splat-transform
+# shellcheck source=scripts/check_lib.sh
+source scripts/check_lib.sh  # the working folder is the repository root here
 
-if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
-  if in_ci; then apt_install nodejs npm; else skip "node/npm not installed (Debian: apt-get install nodejs npm)"; fi
-fi
+need_node
 if ! command -v python3 >/dev/null; then
   if in_ci; then apt_install python3; else skip "python3 (used to compare the outputs) not installed"; fi
 fi

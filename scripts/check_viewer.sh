@@ -24,26 +24,11 @@ MIN_PSNR=${VIEWER_MIN_PSNR:-25}
 CHROMIUM=${CHROMIUM:-/usr/bin/chromium}
 export CHROMIUM
 
-in_ci() { [ -n "${CI:-}" ] && [ "${CI}" != "false" ]; }
-skip() {
-  if in_ci; then
-    echo "FAIL: $1 (CI=$CI: the viewer check must run)"
-    exit 1
-  fi
-  echo "skipped: $1"
-  exit 0
-}
-apt_install() {
-  local sudo=""
-  [ "$(id -u)" -eq 0 ] || sudo="sudo"
-  echo "== installing $* with apt-get"
-  $sudo apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "$@"
-}
+CHECK_NAME=viewer
+# shellcheck source=scripts/check_lib.sh
+source scripts/check_lib.sh  # the working folder is the repository root here
 
-if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
-  if in_ci; then apt_install nodejs npm; else skip "node/npm not installed (Debian: apt-get install nodejs npm)"; fi
-fi
+need_node
 if [ ! -x "$CHROMIUM" ]; then
   if in_ci && [ "$CHROMIUM" = /usr/bin/chromium ]; then apt_install chromium; else
     skip "$CHROMIUM not found (Debian: apt-get install chromium)"
