@@ -96,6 +96,9 @@ class Trainer {
     RenderParams<Scalar> rp;
     for (int c = 0; c < 3; ++c) rp.background[std::size_t(c)] = Scalar(params.background[std::size_t(c)]);
     rp.threads = params.threads;
+    ensure(params.near_plane_fraction > 0, "Trainer: near_plane_fraction must be positive, got ",
+           params.near_plane_fraction);
+    rp.near_plane = params.near_plane_fraction * double(s_.extent);
     renderer_ = Renderer<Scalar>(rp);
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
     s_.stats.reset(scene.size());
@@ -240,6 +243,11 @@ class Trainer {
     }
     last_.field_ms = field_ms;
     last_.render = renderer_.output().frame;
+    last_.warning.clear();
+    if (!near_warned_) {  // once: the same cameras would repeat it every iteration
+      last_.warning = near_cull_warning(last_.render, renderer_.params().near_plane);
+      near_warned_ = !last_.warning.empty();
+    }
     last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
     step_gaussians(s_.adam, s_.scene, *grad, threads);
@@ -293,6 +301,7 @@ class Trainer {
   DensifyDriver<Scalar> densify_;
   PlateauStop plateau_;
   TrainProgress last_;
+  bool near_warned_ = false;
 
   // Workspaces reused across iterations.
   Renderer<Scalar> renderer_;
