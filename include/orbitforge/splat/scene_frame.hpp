@@ -17,7 +17,9 @@
 // A similarity without rotation leaves view directions (SH colour) and Gaussian
 // rotations unchanged; scales scale, so log-scales shift by log(scale).
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <vector>
 
 #include "orbitforge/core/camera.hpp"
