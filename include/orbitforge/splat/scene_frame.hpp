@@ -98,8 +98,10 @@ inline SceneFrame fit_scene_frame(const std::vector<Eigen::Vector3d>& centres, c
     r *= 1.1;
   }
   // "All at one place": relative to the coordinates' own size, since a spread of
-  // 1e-9 is real for a 1e-6-sized model and rounding for one 1e6 units away.
-  const double tiny = 1e-9 * std::max(r, f.origin.norm());
+  // 1e-9 is real for a 1e-6-sized model and rounding for one 1e6 units away. At
+  // 1e-13 (a few hundred double roundings): 1e-9 took the cameras of a 1e-4-sized
+  // model 1e6 units out (spread 5e-10 of the coordinates) for one place.
+  const double tiny = 1e-13 * std::max(r, f.origin.norm());
   if (!(r > tiny) && points.size() >= 3) {
     const std::size_t n = points.size() / 3;
     Eigen::Vector3d m = Eigen::Vector3d::Zero();
