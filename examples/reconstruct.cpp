@@ -13,7 +13,9 @@
 // Writes to --out: checkpoint.bin (trainer state, incl. the deformation network),
 // scene.ply (static: the trained scene; deformable: the MedianGS bake) and metrics.json
 // {iterations, seconds, gaussians, train_psnr, holdout_psnr, holdout_ssim,
-// holdout_psnr_baked (deformable), curve (with --eval-every)}. --minutes stops
+// holdout_psnr_baked (deformable), curve (with --eval-every), frame}. Training runs in a
+// frame normalised to the cameras (splat/scene_frame.hpp; metrics.json "frame" gives
+// origin and scale, and checkpoint.bin is in it); scene.ply is in the model's own frame. --minutes stops
 // training early after that much training wall time. --field picks the deformation
 // network (default fast = 4 x 64; original = the published 8 x 256). Errors: a message, exit
 // status 2 (arguments) or 1 (inputs), and no output files.
@@ -188,6 +190,7 @@ struct Dataset {
   std::size_t points_total = 0;
   BackgroundEstimate background;
   std::vector<SkippedFrame> skipped;
+  SceneFrame frame;  // the model's frame -> the normalised one training works in
 };
 
 // The frames of --frames (video frame numbers: the images of images/ in name
@@ -195,9 +198,10 @@ struct Dataset {
 // held out. Points: those at least two training frames observed.
 Dataset load(const Args& a) {
   PipelineInput<S> in = load_colmap_input<S>(a.colmap, a.frames.empty() ? std::string("1-") : a.frames, a.width,
-                                             a.height);
+                                             a.height, /*normalise=*/true);
   withhold_every(in, a.holdout_every);
   Dataset d;
+  d.frame = in.frame;
   d.background = choose_background(in, a.background_set ? &a.background : nullptr);
   if (a.background_random) force_random_background(in, d.background);
   d.skipped = in.source_skipped;
@@ -298,6 +302,7 @@ int run(const Args& a) {
   nlohmann::json levers = nlohmann::json::object();
   while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
+    if (!pr.warning.empty()) std::fprintf(stderr, "reconstruct: warning: %s\n", pr.warning.c_str());
     train_seconds = pr.elapsed_seconds;
     const ShortcutState& sc = pr.shortcuts;
     if (sc.still_checked && !levers.contains("field_gain_db")) {
@@ -350,6 +355,7 @@ int run(const Args& a) {
     m["holdout_ssim"] = e.ssim;
   }
   if (!curve.empty()) m["curve"] = curve;
+  m["frame"] = {{"origin", {d.frame.origin[0], d.frame.origin[1], d.frame.origin[2]}}, {"scale", d.frame.scale}};
   if (!levers.empty()) m["levers"] = levers;
   GaussianScene<S> out_scene;
   if (a.deformable && trainer.field()) {
@@ -364,7 +370,7 @@ int run(const Args& a) {
   }
   fs::create_directories(a.out);
   trainer.save_checkpoint((fs::path(a.out) / "checkpoint.bin").string());
-  write_ply((fs::path(a.out) / "scene.ply").string(), out_scene);
+  write_ply((fs::path(a.out) / "scene.ply").string(), d.frame.to_user(out_scene));
   write_file_atomic((fs::path(a.out) / "metrics.json").string(), m.dump(2) + "\n");
   std::fprintf(stderr, "reconstruct: %s\n", m.dump().c_str());
   return 0;

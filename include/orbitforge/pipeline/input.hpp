@@ -40,6 +40,7 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/splat/scene_frame.hpp"
 #include "orbitforge/train/background.hpp"
 
 namespace orbitforge {
@@ -82,6 +83,10 @@ struct PipelineInput {
   std::string camera_path = "recorded";
   std::optional<ReferenceInfo<Scalar>> reference;
   std::map<int, Camera<Scalar>> scoring_cameras;  // frames scored at another camera than their own
+  // The similarity from the recorded model's frame to the one cameras and points
+  // are in here (splat/scene_frame.hpp): identity unless loaded normalised; outputs
+  // go back through frame.to_user.
+  SceneFrame frame;
 
   // The camera a frame is scored at.
   const Camera<Scalar>& scoring_camera(int frame) const {
@@ -217,6 +222,9 @@ std::uint64_t input_hash(const PipelineInput<Scalar>& in) {
     os << ' ' << c.intrinsics.fx << ' ' << c.intrinsics.fy;
   }
   os << '\n';
+  if (!in.frame.is_identity())  // (only then, so that earlier hashes stay valid)
+    os << "frame " << in.frame.origin[0] << ' ' << in.frame.origin[1] << ' ' << in.frame.origin[2] << ' '
+       << in.frame.scale << '\n';
   std::uint64_t h = fnv1a(os.str());
   for (const auto& img : in.images) h = fnv1a(img.data.data(), img.data.size() * sizeof(Scalar), h);
   h = fnv1a(in.points.data(), in.points.size() * sizeof(Scalar), h);
@@ -256,9 +264,11 @@ void select_source(PipelineInput<Scalar>& in, const std::string& range_text) {
 // frames (1-based frame numbers, e.g. "1-33"); every registered frame's image is
 // loaded and resized to width x height (intrinsics rescaled); 0 x 0 keeps the
 // frames' own size (every registered camera must then have one size).
+// normalise: cameras and points are moved, in double, into the frame fitted to
+// the registered cameras (fit_scene_frame), recorded in `frame`; else as recorded.
 template <class Scalar>
 PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range, int width,
-                                        int height) {
+                                        int height, bool normalise = false) {
   namespace fs = std::filesystem;
   const bool native = width == 0 && height == 0;
   ensure(native || (width >= 8 && height >= 8), "load_colmap_input: working size ", width, "x", height,
@@ -267,8 +277,28 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   const std::string images_dir = colmap_images_dir(dir);
   ensure(!images_dir.empty(), dir, ": no images/ folder next to the COLMAP model");
   const fs::path images(images_dir);
+  // Every frame in double; the normalised frame is fitted and applied before the
+  // cast, so a model far from the origin or at any scale keeps its precision.
+  const std::vector<FrameCamera<double>> frames_d = colmap_video_frames<double>(model, images_dir);
+  SceneFrame frame;
+  if (normalise) {
+    std::vector<Eigen::Vector3d> centres;
+    for (const auto& fc : frames_d)
+      if (fc.valid) centres.push_back(fc.camera.center());
+    std::vector<double> xyz;
+    for (const auto& p : model.points) xyz.insert(xyz.end(), p.xyz.data(), p.xyz.data() + 3);
+    frame = fit_scene_frame(centres, xyz);
+  }
   PipelineInput<Scalar> in;
-  in.cameras = colmap_video_frames<Scalar>(model, images_dir);
+  for (const auto& fc : frames_d) {
+    FrameCamera<Scalar> c;
+    c.name = fc.name;
+    c.valid = fc.valid;
+    c.camera = (fc.valid ? frame.to_normalised(fc.camera) : fc.camera).template cast<Scalar>();
+    ensure(c.camera.is_finite(), dir, ": image ", fc.name, ": camera values do not fit the precision (too large)");
+    in.cameras.push_back(std::move(c));
+  }
+  in.frame = frame;
   if (native) {
     const FrameCamera<Scalar>* first = nullptr;
     for (const auto& fc : in.cameras) {
@@ -314,8 +344,9 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
       const auto it = frame_of_image.find(image_id);
       if (it != frame_of_image.end()) frames.push_back(it->second);
     }
+    const Eigen::Vector3d x = frame.to_normalised(Eigen::Vector3d(p.xyz[0], p.xyz[1], p.xyz[2]));
     for (int c = 0; c < 3; ++c) {
-      in.points.push_back(Scalar(p.xyz[c]));
+      in.points.push_back(Scalar(x[c]));
       in.colors.push_back(Scalar(p.rgb[std::size_t(c)]) / Scalar(255));
     }
     in.point_frames.push_back(std::move(frames));

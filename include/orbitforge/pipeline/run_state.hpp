@@ -59,6 +59,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
       {"max_sh_degree", t.max_sh_degree},
       {"sh_degree_interval", t.sh_degree_interval},
       {"lambda_dssim", t.lambda_dssim},
+      {"near_plane_fraction", t.near_plane_fraction},
       {"deformable", t.deformable},
       {"densify", t.densify},
       {"median_samples", p.median_samples},

@@ -70,6 +70,24 @@ inline std::string nonfinite_warning(const RenderStats& s) {
   return os.str();
 }
 
+// Share of a scene's Gaussians culled by the near plane above which programs warn
+// (near_cull_warning): beyond the share a camera inside a room leaves behind it,
+// so most likely a near plane too far for the scene's scale.
+inline constexpr double kNearCullWarnShare = 0.9;
+
+// A warning line when more than kNearCullWarnShare of the Gaussians a render saw
+// were culled at or behind the near plane; empty otherwise.
+inline std::string near_cull_warning(const RenderStats& s, double near_plane) {
+  const std::size_t n = s.projection.total(), culled = s.projection.culled_near;
+  if (n == 0 || !(double(culled) > kNearCullWarnShare * double(n))) return {};
+  std::ostringstream os;
+  os.precision(3);
+  os << culled << " of " << n << " Gaussians (" << 100.0 * double(culled) / double(n)
+     << " %) were culled by the near plane at camera-space depth " << near_plane
+     << ": behind the camera, or the near plane is too far for the scene's scale; the image lacks them";
+  return os.str();
+}
+
 // Bytes per pixel of a frame: the renderer's outputs (colour x3, transmittance and
 // depth in Scalar; blend count and backward replay length in int32), plus 6 for
 // the 8-bit copy and encoder of a caller writing a PNG. 34 for float: as measured

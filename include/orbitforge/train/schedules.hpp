@@ -29,6 +29,7 @@ struct TrainSchedule {
     ensure(p.reference_budget > 0 && p.deform_reference_budget > 0, "TrainParams: reference budgets must be positive");
     ensure(p.max_sh_degree >= 0 && p.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ", p.max_sh_degree);
     ensure(p.sh_rest_divisor > 0, "Trainer: sh_rest_divisor must be positive");
+    ensure(p.near_plane_fraction > 0, "Trainer: near_plane_fraction must be positive, got ", p.near_plane_fraction);
     TrainSchedule s;
     const double f = double(p.iterations) / double(p.reference_budget);
     s.sh_interval = std::max(1, int(std::lround(p.sh_degree_interval * f)));

@@ -40,6 +40,11 @@ struct TrainParams {
   int max_sh_degree = 3;
   int sh_degree_interval = 1000;    // per reference_budget; scaled (>= 1)
   double lambda_dssim = 0.2;
+  // Near plane, as a fraction of the scene extent (camera_extent): an absolute one
+  // (the renderer's 0.01) culled every Gaussian of a model recorded 1000 times
+  // smaller. 0.002: about the absolute 0.01 at the v3d models' recorded scale
+  // (extent ~4.3), so results there do not move.
+  double near_plane_fraction = 0.002;
 
   bool densify = true;
   DensifyParams densify_params;

@@ -2,6 +2,7 @@
 // What one training iteration reports (Trainer::step, the train() callback).
 #include <chrono>
 #include <cstddef>
+#include <string>
 
 #include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/splat/renderer.hpp"
@@ -31,6 +32,9 @@ struct TrainProgress {
   std::size_t spared = 0;
   // The still-scene check's and the plateau stop's state after this iteration.
   ShortcutState shortcuts;
+  // A problem to tell the user, set on the first iteration that shows it only
+  // (near_cull_warning); empty otherwise.
+  std::string warning;
 };
 
 // Milliseconds since the previous lap (or since construction): the breakdown of

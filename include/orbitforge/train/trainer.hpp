@@ -83,6 +83,7 @@ class Trainer {
     if (!(s_.extent > Scalar(1e-6))) s_.extent = Scalar(1);  // one camera (or all at one place): unit scale
     RenderParams<Scalar> rp;
     rp.threads = params.threads;
+    rp.near_plane = params.near_plane_fraction * double(s_.extent);
     renderer_ = Renderer<Scalar>(rp);
     set_background(params.background);
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
@@ -115,8 +116,7 @@ class Trainer {
   int iteration() const { return s_.iteration; }
   Scalar extent() const { return s_.extent; }
   const TrainProgress& last_progress() const { return last_; }
-  // The deformation is applied at iterations > warmup (until a still-scene check
-  // bakes the field in).
+  // The deformation is applied at iterations > warmup (until a still-scene check bakes it in).
   bool deforming_at(int it) const { return s_.field && it > schedule_.warmup; }
   // The budget is used up, or the plateau stop ended training.
   bool finished() const { return s_.shortcuts.stopped || s_.iteration >= params_.iterations; }
@@ -137,8 +137,7 @@ class Trainer {
     }
   }
 
-  // One iteration; returns its report. A std::bad_alloc inside becomes OutOfMemory
-  // naming the iteration and the model's size (the trainer is then unusable).
+  // One iteration; a std::bad_alloc inside becomes OutOfMemory naming it (the trainer is then unusable).
   const TrainProgress& step() {
     const std::size_t n = s_.scene.size();
     const std::uint64_t per_gaussian = std::uint64_t(11 + 3 * sh_coefficient_count(params_.max_sh_degree));
@@ -149,10 +148,8 @@ class Trainer {
                                " Gaussians; their parameters, gradients and optimizer moments)");
   }
 
-  // The loss of a deforming step on frame `frame` at time code t (no time noise)
-  // and, in v_field, its gradient w.r.t. the field's parameters: the step's own
-  // forward and backward, without optimiser steps or statistics. Lets a test
-  // check the chain image loss -> renderer -> offsets -> network.
+  // A deforming step's loss on `frame` at time t (no noise) and, in v_field, its gradient w.r.t. the
+  // field's parameters, without optimiser steps or statistics (a test checks the chain with it).
   Scalar deformed_loss_gradient(std::size_t frame, Scalar t, std::vector<Scalar>& v_field) {
     ensure(s_.field != nullptr, "Trainer::deformed_loss_gradient: the trainer is not deformable");
     ensure(frame < frames_.size(), "Trainer::deformed_loss_gradient: frame ", frame, " of ", frames_.size());
@@ -164,9 +161,8 @@ class Trainer {
     return loss.total;
   }
 
-  // Renders the current model for a camera at time code t (deformed when the
-  // deformation is active at the current iteration). The image is the renderer's
-  // buffer: valid until the next render or training step.
+  // The current model at a camera and time t (deformed when the deformation is active), in the
+  // renderer's buffer: valid until the next render or training step.
   const Image<Scalar>& render(const Camera<Scalar>& camera, Scalar time) {
     if (!deforming_at(s_.iteration)) return renderer_.render(SceneView<Scalar>(s_.scene), camera).color;
     return renderer_.render(deformed_.view(s_.scene, *s_.field, time, params_.threads), camera).color;
@@ -229,6 +225,11 @@ class Trainer {
     }
     last_.field_ms = field_ms;
     last_.render = renderer_.output().frame;
+    last_.warning.clear();
+    if (!near_warned_) {  // once: the same cameras would repeat it every iteration
+      last_.warning = near_cull_warning(last_.render, renderer_.params().near_plane);
+      near_warned_ = !last_.warning.empty();
+    }
     last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
     if (params_.random_background) set_background(params_.background);  // every other render: the fixed colour
@@ -287,6 +288,7 @@ class Trainer {
   DensifyDriver<Scalar> densify_;
   PlateauStop plateau_;
   TrainProgress last_;
+  bool near_warned_ = false;
 
   // Workspaces reused across iterations.
   Renderer<Scalar> renderer_;
