@@ -109,8 +109,7 @@ class Trainer {
   const TrainSchedule& schedule() const { return schedule_; }
   const GaussianScene<Scalar>& scene() const { return s_.scene; }
   const DeformationField<Scalar>* field() const { return s_.field.get(); }
-  // The field, writable (a test perturbing its weights); null when not deformable.
-  DeformationField<Scalar>* field() { return s_.field.get(); }
+  DeformationField<Scalar>* field() { return s_.field.get(); }  // writable (a test perturbs it); null when static
   const Adam<Scalar>& optimizer() const { return s_.adam; }
   const DensifyStats<Scalar>& densify_stats() const { return s_.stats; }
   int iteration() const { return s_.iteration; }
