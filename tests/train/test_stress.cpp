@@ -24,12 +24,6 @@ using namespace orbitforge;
 
 namespace stress {
 
-#ifdef ORBITFORGE_TEST_QUICK
-constexpr bool kQuick = true;
-#else
-constexpr bool kQuick = false;
-#endif
-
 // A small synthetic scene in double: its ground truth and 8 cameras, 32 x 32.
 struct World {
   GaussianScene<double> scene;
@@ -162,10 +156,13 @@ TEMPLATE_TEST_CASE("stress: renders of a moved or rescaled model match the unmov
     CAPTURE(m.s, m.d.norm());
     const auto v = stress::seen<S>(w, m.s, m.d);
     const double diff = stress::max_abs_diff(base, stress::render_all(v.scene, v.cameras));
-    // Measured: float <= 6.6e-7 (at the 1e6 moves), double <= 1.4e-9 (at 1e6: the user's
-    // frame itself holds 1e6 to 1e-10). Before scene_frame's "one place" threshold was
-    // fixed, s = 1e-4 with d = 1e6 gave 0.93 in both (not re-measured since: see docs).
-    CHECK(diff < (sizeof(S) == 4 ? 2e-5 : 1e-7));
+    // The bound: the working precision, plus how finely the user's own frame (double)
+    // holds a model of size s at distance |d|, relative to its size. Measured: float
+    // <= 6.6e-7 (eps 1.2e-7), double 1.4e-9 at s = 1 and |d| = 1e6, and 1.05e-5 at
+    // s = 1e-4 and |d| = 1e6 (the input itself resolves only 2.2e-6 of the model
+    // there). Before scene_frame's "one place" threshold was fixed that case gave 0.93.
+    const double user_eps = std::numeric_limits<double>::epsilon() * m.d.norm() / m.s;
+    CHECK(diff < 50 * (double(std::numeric_limits<S>::epsilon()) + user_eps));
     // Outputs go back to the user's frame: means within double rounding of the move.
     const auto back = v.frame.to_user(v.scene.template cast<double>());
     const auto moved = stress::relocate(w.scene, m.s, m.d);
@@ -187,19 +184,20 @@ TEMPLATE_TEST_CASE("stress: renders of a moved or rescaled model match the unmov
 TEMPLATE_TEST_CASE("stress: a short training on a moved or rescaled model matches the unmoved one",
                    "[train][stress]", float, double) {
   using S = TestType;
-  const int iterations = stress::kQuick ? 20 : 50;
+  const int iterations = 50;  // about 1 s (release); the sanitizer build runs the same
   const stress::World w = stress::small_world();
   const auto base_view = stress::seen<S>(w, 1, Eigen::Vector3d::Zero());
   const auto targets = stress::render_all(base_view.scene, base_view.cameras);
   const double base = stress::train_psnr(base_view, targets, iterations);
   INFO("unmoved: " << base << " dB");
-  // Measured: 23.03 dB (double, 200 iterations); at 50 not measured (see docs).
-  CHECK(base > 15);
+  // Measured at 50 iterations: 15.15 dB in float and double (23.03 dB at 200): the
+  // check says that training ran, the comparison below is the point.
+  CHECK(base > 13);
   for (const auto& m : {stress::moves()[2], stress::moves()[3], stress::moves()[7]}) {
     CAPTURE(m.s, m.d.norm());
     const double p = stress::train_psnr(stress::seen<S>(w, m.s, m.d), targets, iterations);
-    // Measured at 200 iterations: double 5.6e-5 dB (1e6 move), 4.8e-5 dB (1e4 scale, 2e6 move);
-    // float: not recorded (see docs/numerics.md).
+    // Measured at 50 iterations: double <= 2.5e-9 dB, float <= 1.8e-6 dB (at 200:
+    // double 5.6e-5 dB at a 1e6 move).
     CHECK(std::abs(p - base) < (sizeof(S) == 4 ? 0.1 : 1e-3));
   }
 }
@@ -295,9 +293,8 @@ TEMPLATE_TEST_CASE("stress: a camera inside a Gaussian", "[train][stress]", floa
 }
 
 TEST_CASE("stress: float training follows double training", "[train][stress]") {
-  // 2,000 iterations take minutes (docs/numerics.md gives that run); CI runs 100
-  // (50 under the sanitizers).
-  const int iterations = stress::kQuick ? 50 : 100;
+  // 2,000 iterations take minutes (docs/numerics.md gives that run); CI runs 100.
+  const int iterations = 100;
   const stress::World w = stress::small_world();
   const auto vd = stress::seen<double>(w, 1, Eigen::Vector3d::Zero());
   const auto vf = stress::seen<float>(w, 1, Eigen::Vector3d::Zero());
@@ -312,7 +309,8 @@ TEST_CASE("stress: float training follows double training", "[train][stress]") {
   const double pf = stress::train_psnr(vf, targets_f, iterations);
   INFO("double " << pd << " dB, float " << pf << " dB");
   // Measured at 2,000 iterations: double 49.44 dB, float 48.08 dB (1.35 dB apart, both at
-  // an MSE near 1e-5 where float rounding sets the floor); at 100 not measured (see docs).
+  // an MSE near 1e-5 where float rounding sets the floor); at 100: float 19.35 dB,
+  // 0.18 dB from double.
   CHECK(std::abs(pd - pf) < 0.5);
-  CHECK(pf > 15);
+  CHECK(pf > 17);
 }
