@@ -16,7 +16,8 @@
 // georeferenced model) lose the residual's digits in float.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-#include <Eigen/SVD>
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>  // Eigen::umeyama
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -83,9 +84,14 @@ CameraAlignment align_camera_centres(const std::vector<Camera<Scalar>>& from, co
   const Eigen::Vector3d mean_src = src.rowwise().mean();
   const double spread_src = std::sqrt((src.colwise() - mean_src).squaredNorm() / n);
   ensure(spread > 0 && spread_src > 0, "align_camera_centres: the camera centres of one side coincide");
-  // Two singular values must be non-zero (centres spanning at least a plane's line pair).
-  Eigen::JacobiSVD<Eigen::Matrix3Xd> svd(dst.colwise() - mean_dst);
-  ensure(svd.singularValues()(1) > 1e-9 * svd.singularValues()(0),
+  // Two singular values of the centred centres must be non-zero (they span at
+  // least a plane). They are the square roots of the scatter's eigenvalues, which
+  // resolve ratios down to about 1e-8 in double, hence the 1e-6 threshold.
+  const Eigen::Matrix3Xd centred = dst.colwise() - mean_dst;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> scatter(centred * centred.transpose(),
+                                                                Eigen::EigenvaluesOnly);
+  const Eigen::Vector3d lambda = scatter.eigenvalues().cwiseMax(0.0);  // ascending
+  ensure(std::sqrt(lambda(1)) > 1e-6 * std::sqrt(lambda(2)),
          "align_camera_centres: the target camera centres lie on one line; the rotation about it is not fixed");
 
   const Eigen::Matrix4d T = Eigen::umeyama(src, dst, true);

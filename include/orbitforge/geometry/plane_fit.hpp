@@ -16,7 +16,7 @@
 //                deterministic rule (largest |component| of n positive).
 // The basis is completed right-handed: e2 = n x e1.
 #include <Eigen/Core>
-#include <Eigen/SVD>
+#include <Eigen/Eigenvalues>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -56,28 +56,36 @@ PlaneFit<Scalar> fit_plane(const std::vector<Eigen::Matrix<Scalar, 3, 1>>& point
                            const Eigen::Matrix<Scalar, 3, 1>& mean_forward,
                            const PlaneFitParams& params = {}) {
   using Vec3 = Eigen::Matrix<Scalar, 3, 1>;
-  using MatX3 = Eigen::Matrix<Scalar, Eigen::Dynamic, 3>;
   const auto T = points.size();
   ensure(T >= 3, "fit_plane: need at least 3 camera centres, got ", T);
   PlaneFit<Scalar> pf;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const auto& p : points) {
     ensure(p.allFinite(), "fit_plane: non-finite camera centre");
-    pf.centroid += p;
+    centroid += p.template cast<double>();
   }
-  pf.centroid /= Scalar(T);
-  MatX3 X(T, 3);
-  for (std::size_t i = 0; i < T; ++i) X.row(i) = (points[i] - pf.centroid).transpose();
-  Eigen::JacobiSVD<MatX3> svd(X, Eigen::ComputeFullV);  // V is 3x3: "thin" is only for dynamic columns
-  pf.singular_values = svd.singularValues();
-  const Vec3 s = svd.singularValues();
+  centroid /= double(T);
+  pf.centroid = centroid.cast<Scalar>();
+  // The singular values of the centred T x 3 matrix X are the square roots of the
+  // eigenvalues of X^T X (3x3, in double): the same plane as an SVD of X, through
+  // a fixed-size solver that compiles in a fraction of the time.
+  Eigen::Matrix3d XtX = Eigen::Matrix3d::Zero();
+  for (const auto& p : points) {
+    const Eigen::Vector3d d = p.template cast<double>() - centroid;
+    XtX += d * d.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(XtX);  // eigenvalues ascending
+  const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);
+  const Vec3 s(Scalar(std::sqrt(lambda(2))), Scalar(std::sqrt(lambda(1))), Scalar(std::sqrt(lambda(0))));
+  pf.singular_values = s;
   const Scalar scale = std::max(Scalar(1), pf.centroid.cwiseAbs().maxCoeff());
   ensure(s(0) > Scalar(100) * Constants<Scalar>::epsilon() * scale * std::sqrt(Scalar(T)),
          "fit_plane: all ", T, " camera centres coincide; no orbit plane");
   const Scalar floor = std::max(Scalar(params.collinear_ratio), Scalar(100) * Constants<Scalar>::epsilon());
   ensure(s(1) >= floor * s(0), "fit_plane: the ", T, " camera centres are collinear (singular values ", s(0),
          ", ", s(1), "); no orbit plane");
-  pf.e1 = svd.matrixV().col(0).normalized();
-  Vec3 n = svd.matrixV().col(2).normalized();
+  pf.e1 = es.eigenvectors().col(2).cast<Scalar>().normalized();
+  Vec3 n = es.eigenvectors().col(0).cast<Scalar>().normalized();
 
   const Scalar up_dot = n.dot(mean_up);
   if (std::abs(up_dot) >= Scalar(params.up_threshold)) {
