@@ -15,7 +15,7 @@
 #include <memory>
 #include <random>
 
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/trainer.hpp"
 

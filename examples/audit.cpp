@@ -37,13 +37,14 @@
 #include <vector>
 
 #include "cli.hpp"
-#include "orbitforge/io/colmap.hpp"
-#include "orbitforge/io/image_io.hpp"
 #include "orbitforge/audit/audit_shard.hpp"
 #include "orbitforge/audit/audit_table.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/io/colmap.hpp"
+#include "orbitforge/io/image_io.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "pipeline_flags.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 
 using namespace orbitforge;
 using S = float;

@@ -21,8 +21,8 @@
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/npy.hpp"
 #include "orbitforge/io/transforms_json.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
 #include "cli.hpp"
 
 using namespace orbitforge;

@@ -25,12 +25,13 @@
 #include <string>
 
 #include "cli.hpp"
-#include "orbitforge/pipeline/completion_providers.hpp"
-#include "orbitforge/pipeline/external_tools.hpp"
-#include "orbitforge/pipeline/frame_inputs.hpp"
+#include "orbitforge/pipeline/completion/providers.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/frame_inputs.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 #include "pipeline_flags.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 
 using namespace orbitforge;
 using S = float;

@@ -4,7 +4,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "orbitforge/pipeline/prompt.hpp"
+#include "orbitforge/pipeline/completion/prompt.hpp"
 
 int main(int argc, char** argv) {
   std::string subject, proposal;

@@ -11,11 +11,12 @@
 #include <string>
 
 #include "cli.hpp"
-#include "orbitforge/pipeline/completion_providers.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/completion/providers.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/params.hpp"
 #include "orbitforge/pipeline/protocol.hpp"
-#include "orbitforge/pipeline/reference.hpp"
+#include "orbitforge/pipeline/report/reference.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 
 namespace orbitforge::cli {
@@ -207,7 +208,7 @@ inline CameraStageParams camera_stage_params(const PipelineFlags& f) {
 // A video or a folder of frames whose cameras COLMAP estimates from the source
 // frames alone (stages/cameras.hpp), as a user gets them. With `reference` (a
 // COLMAP folder of the same video estimated from every frame) the run is scored
-// against it (pipeline/reference.hpp); the method never reads it.
+// against it (pipeline/report/reference.hpp); the method never reads it.
 template <class Scalar>
 PipelineInput<Scalar> load_estimated_input(const std::string& program, const std::string& out,
                                            const CameraStageParams& cp, const PipelineFlags& f,

@@ -35,11 +35,12 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "cli.hpp"
 #include "pipeline_flags.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
 
 using namespace orbitforge;
 using S = float;

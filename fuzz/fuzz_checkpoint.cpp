@@ -33,7 +33,7 @@
 #include <vector>
 
 #include "orbitforge/nn/binary_io.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"

@@ -15,11 +15,12 @@
 
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/colmap.hpp"
-#include "orbitforge/pipeline/external_tools.hpp"
-#include "orbitforge/pipeline/input.hpp"
-#include "orbitforge/pipeline/focal_search.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/focal_search.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 #include "support/data.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
 
 using namespace orbitforge;
 

@@ -1,5 +1,5 @@
 // Recorded inputs with cameras from transforms.json or VGGT-style .npy arrays
-// beside a folder of frames (pipeline/frame_inputs.hpp): frames in name order,
+// beside a folder of frames (pipeline/inputs/frame_inputs.hpp): frames in name order,
 // cameras matched by file name or by position, intrinsics at the working size,
 // and frames without a camera skipped with a reason.
 #include <catch2/catch.hpp>
@@ -12,7 +12,7 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/io/npy.hpp"
 #include "orbitforge/io/transforms_json.hpp"
-#include "orbitforge/pipeline/frame_inputs.hpp"
+#include "orbitforge/pipeline/inputs/frame_inputs.hpp"
 
 using namespace orbitforge;
 

@@ -15,6 +15,8 @@
 
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "support/data.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 
 using namespace orbitforge;
 namespace fs = std::filesystem;

@@ -9,10 +9,11 @@
 #include <random>
 #include <sstream>
 
-#include "orbitforge/pipeline/input.hpp"
-#include "orbitforge/pipeline/input_json.hpp"
+#include "orbitforge/pipeline/inputs/input_json.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "support/data.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
 
 using namespace orbitforge;
 namespace fs = std::filesystem;

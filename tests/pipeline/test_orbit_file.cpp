@@ -3,8 +3,8 @@
 #include <filesystem>
 #include <fstream>
 
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
 
 using namespace orbitforge;
 

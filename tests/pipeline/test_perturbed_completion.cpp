@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-#include "orbitforge/pipeline/perturbed_completion.hpp"
+#include "orbitforge/pipeline/completion/perturbed.hpp"
 
 using namespace orbitforge;
 

@@ -3,7 +3,7 @@
 
 #include <cmath>
 
-#include "orbitforge/pipeline/pictures.hpp"
+#include "orbitforge/pipeline/report/pictures.hpp"
 
 using namespace orbitforge;
 

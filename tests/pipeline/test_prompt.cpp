@@ -1,6 +1,6 @@
 #include <catch2/catch.hpp>
 
-#include "orbitforge/pipeline/prompt.hpp"
+#include "orbitforge/pipeline/completion/prompt.hpp"
 
 using namespace orbitforge;
 

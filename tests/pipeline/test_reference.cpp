@@ -1,4 +1,4 @@
-// Scoring on the user's path (pipeline/reference.hpp): a reference model of every
+// Scoring on the user's path (pipeline/report/reference.hpp): a reference model of every
 // frame, in its own gauge, is aligned to cameras estimated from the source frames
 // alone; gap frames and withheld frames are scored at its cameras, and nothing
 // the method reads changes.
@@ -7,8 +7,9 @@
 #include <cmath>
 
 #include "orbitforge/geometry/orbit.hpp"
-#include "orbitforge/pipeline/input.hpp"
-#include "orbitforge/pipeline/reference.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
+#include "orbitforge/pipeline/report/reference.hpp"
 
 using namespace orbitforge;
 

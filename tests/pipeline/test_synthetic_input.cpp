@@ -1,6 +1,6 @@
 #include <catch2/catch.hpp>
 
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 
 using namespace orbitforge;
 

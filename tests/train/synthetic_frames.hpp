@@ -1,10 +1,10 @@
 #pragma once
-// Training frames rendered from a small synthetic scene (pipeline/synthetic_input.hpp)
+// Training frames rendered from a small synthetic scene (pipeline/inputs/synthetic_input.hpp)
 // at its true cameras: count frames of size x size pixels (width x size when width
 // is given), white background unless given, time codes spread over [0, 1].
 #include <vector>
 
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/trainer.hpp"
 

@@ -3,7 +3,7 @@
 #include <catch2/catch.hpp>
 
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "train/synthetic_frames.hpp"

@@ -9,7 +9,8 @@
 #include <cmath>
 
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 

@@ -4,7 +4,7 @@
 // only; the check's code paths run sanitized in train.training_levers).
 #include <catch2/catch.hpp>
 
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 

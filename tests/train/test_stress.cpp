@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/splat/scene_frame.hpp"
 #include "orbitforge/train/init.hpp"

@@ -15,7 +15,7 @@
 #include <unistd.h>
 
 #include "orbitforge/io/atomic_file.hpp"
-#include "orbitforge/pipeline/synthetic_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"

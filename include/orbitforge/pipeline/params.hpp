@@ -11,7 +11,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
-#include "orbitforge/pipeline/perturbed_completion.hpp"
+#include "orbitforge/pipeline/completion/perturbed.hpp"
 #include "orbitforge/pipeline/progress.hpp"
 #include "orbitforge/train/trainer.hpp"
 

@@ -35,9 +35,10 @@
 #include <type_traits>
 
 #include "orbitforge/core/error.hpp"
-#include "orbitforge/pipeline/completion.hpp"
-#include "orbitforge/pipeline/completion_providers.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
+#include "orbitforge/pipeline/completion/providers.hpp"
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
+#include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 #include "orbitforge/pipeline/params.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 #include "orbitforge/pipeline/stages/completion.hpp"

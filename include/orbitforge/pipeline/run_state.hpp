@@ -13,11 +13,11 @@
 
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
-#include "orbitforge/pipeline/input.hpp"
-#include "orbitforge/pipeline/params.hpp"
-#include "orbitforge/pipeline/prompt.hpp"
-#include "orbitforge/pipeline/stage_record.hpp"
 #include "orbitforge/io/image_folder.hpp"
+#include "orbitforge/pipeline/completion/prompt.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/params.hpp"
+#include "orbitforge/pipeline/stage_record.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/trainer.hpp"
 

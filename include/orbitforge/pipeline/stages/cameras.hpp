@@ -40,9 +40,9 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
-#include "orbitforge/pipeline/colmap_commands.hpp"
-#include "orbitforge/pipeline/external_tools.hpp"
-#include "orbitforge/pipeline/focal_search.hpp"
+#include "orbitforge/pipeline/inputs/colmap_commands.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/focal_search.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
 
 namespace orbitforge {

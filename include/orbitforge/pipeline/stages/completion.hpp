@@ -1,5 +1,5 @@
 #pragma once
-// Stage 3, completion: a provider (pipeline/completion.hpp) fills the gap, and
+// Stage 3, completion: a provider (pipeline/completion/provider.hpp) fills the gap, and
 // V_hat, the second reconstruction's training set, is assembled -> vhat.json,
 // vhat/NNNN.png (+ the provider's own folder).
 #include <algorithm>
@@ -15,7 +15,7 @@
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
 #include "orbitforge/metrics/view_matching.hpp"
-#include "orbitforge/pipeline/completion.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 

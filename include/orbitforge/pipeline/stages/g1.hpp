@@ -27,7 +27,7 @@
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/spz.hpp"
-#include "orbitforge/pipeline/completion.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
 #include "orbitforge/pipeline/reconstruction.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 #include "orbitforge/pipeline/stages/completion.hpp"

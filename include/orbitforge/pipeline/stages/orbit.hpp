@@ -15,9 +15,9 @@
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/geometry/orbit_check.hpp"
 #include "orbitforge/io/atomic_file.hpp"
-#include "orbitforge/pipeline/input_json.hpp"
+#include "orbitforge/pipeline/completion/prompt.hpp"
+#include "orbitforge/pipeline/inputs/input_json.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
-#include "orbitforge/pipeline/prompt.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 
 namespace orbitforge {

@@ -14,11 +14,11 @@
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/pipeline/completion.hpp"
-#include "orbitforge/pipeline/input_json.hpp"
-#include "orbitforge/pipeline/pictures.hpp"
-#include "orbitforge/pipeline/reference.hpp"
-#include "orbitforge/pipeline/report.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
+#include "orbitforge/pipeline/inputs/input_json.hpp"
+#include "orbitforge/pipeline/report/pictures.hpp"
+#include "orbitforge/pipeline/report/reference.hpp"
+#include "orbitforge/pipeline/report/report_markdown.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 
 namespace orbitforge {

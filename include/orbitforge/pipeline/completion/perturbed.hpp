@@ -29,7 +29,7 @@
 #include <vector>
 
 #include "orbitforge/core/constants.hpp"
-#include "orbitforge/pipeline/completion.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
 
 namespace orbitforge {
 

@@ -2,7 +2,7 @@
 // Recorded inputs whose cameras come from files beside the frames instead of a
 // COLMAP model: a transforms.json (nerfstudio / instant-ngp) and VGGT-style .npy
 // arrays (io/npy.hpp). Frames, numbering, source range and skipped frames work
-// as in load_colmap_input (pipeline/input.hpp); these inputs have no sparse
+// as in load_colmap_input (pipeline/inputs/recorded_input.hpp); these inputs have no sparse
 // points, so reconstructions start from random points (reconstruction.hpp).
 #include <filesystem>
 #include <map>
@@ -15,7 +15,7 @@
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/io/npy.hpp"
 #include "orbitforge/io/transforms_json.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 
 namespace orbitforge {
 

@@ -4,7 +4,7 @@
 // sparse points the source evidence kept.
 #include <nlohmann/json.hpp>
 
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 
 namespace orbitforge {
 

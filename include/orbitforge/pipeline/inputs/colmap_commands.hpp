@@ -1,7 +1,7 @@
 #pragma once
 // The settings of the cameras stage and the command lines of the programs it
 // runs (ffmpeg, COLMAP's feature_extractor, sequential_matcher and mapper),
-// built as argument vectors (pipeline/external_tools.hpp runs them), and the
+// built as argument vectors (pipeline/inputs/external_tools.hpp runs them), and the
 // COLMAP model files the stage writes or picks.
 //
 // A known focal length is held fixed by giving the mapper an input model that
@@ -20,7 +20,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/colmap.hpp"
-#include "orbitforge/pipeline/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
 
 namespace orbitforge {
 
@@ -40,7 +40,7 @@ struct CameraStageParams {
   double focal_px = 0, fov_deg = 0;
   // Without it the mapper's own estimate is kept, unless these multiples of it
   // are given: then the stage maps again at each and keeps the focal length
-  // whose cameras fit an orbit best (pipeline/focal_search.hpp). Off by default:
+  // whose cameras fit an orbit best (pipeline/inputs/focal_search.hpp). Off by default:
   // on the recorded videos the search moved the focal further from the
   // reference model's as often as closer (docs/cameras.md).
   std::vector<double> focal_factors;

@@ -4,8 +4,8 @@
 #include <string>
 
 #include "orbitforge/core/error.hpp"
-#include "orbitforge/pipeline/completion.hpp"
-#include "orbitforge/pipeline/perturbed_completion.hpp"
+#include "orbitforge/pipeline/completion/perturbed.hpp"
+#include "orbitforge/pipeline/completion/provider.hpp"
 
 namespace orbitforge {
 

@@ -34,7 +34,7 @@
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 
 namespace orbitforge {
 

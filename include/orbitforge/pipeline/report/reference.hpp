@@ -29,7 +29,7 @@
 #include "orbitforge/geometry/angles.hpp"
 #include "orbitforge/geometry/camera_alignment.hpp"
 #include "orbitforge/geometry/orbit.hpp"
-#include "orbitforge/pipeline/input.hpp"
+#include "orbitforge/pipeline/inputs/recorded_input.hpp"
 
 namespace orbitforge {
 

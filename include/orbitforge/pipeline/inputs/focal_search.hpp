@@ -31,8 +31,8 @@
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/image_io.hpp"
-#include "orbitforge/pipeline/colmap_commands.hpp"
-#include "orbitforge/pipeline/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/colmap_commands.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
 
 namespace orbitforge {
 
