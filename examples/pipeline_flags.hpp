@@ -32,7 +32,7 @@ inline const char* kPipelineFlagsUsage =
     "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
     "  --g1-source-repeats N --g1-completion-repeats N\n"
     "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
-    "  --no-static-diagnostics     skip the static-proxy comparison renders (not part of the method)\n"
+    "  --static-diagnostics        also render the static-proxy comparison (not part of the method; off by default)\n"
     "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n"
     "Work a scene does not need (off by default; each reconstruction):\n"
     "  --still-check N [--still-gain DB]   N iterations after the warm-up, bake the field in and train static\n"
@@ -137,7 +137,8 @@ inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, Pipeli
   else if (flag == "--oracle-bound") p.oracle_bound = true;
   else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
   else if (flag == "--quiet") p.progress = false;
-  else if (flag == "--no-static-diagnostics") p.static_proxy_diagnostics = false;
+  else if (flag == "--static-diagnostics") p.static_proxy_diagnostics = true;
+  else if (flag == "--no-static-diagnostics") p.static_proxy_diagnostics = false;  // the default; kept for old commands
   else if (flag == "--checkpoint-every") p.checkpoint_every = integer(0);
   else if (flag == "--still-check") p.train.still_check_iterations = integer(0);
   else if (flag == "--still-gain") p.train.still_gain_db = parse_double(program, flag, a.value());

@@ -17,6 +17,8 @@
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/densify.hpp"
+#include "orbitforge/train/train_params.hpp"
 #include "cli.hpp"
 
 using namespace orbitforge;
@@ -25,7 +27,8 @@ namespace {
 
 const char* kUsage =
     "usage: render_orbit --ply scene.ply (--camera cam.json | --orbit orbit.json [--every K]) --out DIR\n"
-    "                    [--format png|pfm] [--background r,g,b] [--threads N] [--stats]\n";
+    "                    [--format png|pfm] [--background r,g,b] [--threads N] [--stats]\n"
+    "                    [--near-plane-fraction X]  near plane as a share of the scene's scale (default 0.002)\n";
 
 }  // namespace
 
@@ -38,6 +41,7 @@ int main(int argc, char** argv) {
     std::string ply, camera_file, orbit_file, out, format = "png";
     int every = 1, threads = 0;
     bool stats = false;
+    double near_fraction = TrainParams{}.near_plane_fraction;
     RenderParams<float> params;
     cli::ArgWalker w("render_orbit", argc, argv);
     while (w.next()) {
@@ -50,6 +54,7 @@ int main(int argc, char** argv) {
       else if (f == "--format") format = w.value();
       else if (f == "--threads") threads = cli::parse_threads("render_orbit", f, w.value());
       else if (f == "--stats") stats = true;
+      else if (f == "--near-plane-fraction") near_fraction = cli::parse_double("render_orbit", f, w.value());
       else if (f == "--background") {
         const auto c = cli::parse_rgb("render_orbit", f, w.value());
         params.background = {float(c[0]), float(c[1]), float(c[2])};
@@ -64,19 +69,38 @@ int main(int argc, char** argv) {
     usage(!out.empty(), "--out DIR is required");
     usage(camera_file.empty() != orbit_file.empty(), "give exactly one of --camera and --orbit");
     usage(format == "png" || format == "pfm", "--format must be png or pfm");
+    usage(near_fraction > 0 && near_fraction < 1, "--near-plane-fraction must be in (0, 1)");
     params.threads = threads;
 
     const auto scene = read_ply<float>(ply);
     const auto cameras = read_cameras_json<float>(camera_file.empty() ? orbit_file : camera_file);
+    // The near plane scales with the scene, as in training: a share of the cameras'
+    // extent, or for one camera of its distance to the Gaussians' mean.
+    double scale = 0;
+    if (cameras.size() > 1) {
+      scale = double(camera_extent(cameras));
+    } else if (scene.size() > 0) {
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      for (std::size_t g = 0; g < scene.size(); ++g)
+        for (int k = 0; k < 3; ++k) mean(k) += double(scene.means[3 * g + std::size_t(k)]);
+      scale = (cameras[0].cast<double>().center() - mean / double(scene.size())).norm();
+    }
+    if (!(scale > 1e-12) || !std::isfinite(scale)) scale = 1;
+    params.near_plane = near_fraction * scale;
     std::filesystem::create_directories(out);
     Renderer<float> renderer(params);
-    bool warned = false;
+    bool warned = false, warned_near = false;
     for (std::size_t i = 0; i < cameras.size(); i += std::size_t(every)) {
       const auto& frame = renderer.render(SceneView<float>(scene), cameras[i]);
       if (!warned) {  // once: the same Gaussians are skipped at every camera
         const std::string w = nonfinite_warning(frame.frame);
         if (!w.empty()) std::cerr << "render_orbit: warning: " << ply << ": " << w << "\n";
         warned = !w.empty();
+      }
+      if (!warned_near) {
+        const std::string w = near_cull_warning(frame.frame, params.near_plane);
+        if (!w.empty()) std::cerr << "render_orbit: warning: " << ply << ": " << w << "\n";
+        warned_near = !w.empty();
       }
       char name[32];
       std::snprintf(name, sizeof(name), "%05zu.%s", i, format.c_str());

@@ -2,14 +2,15 @@
 # Ecosystem check: a scene orbitforge reconstructed opens in a web Gaussian-splat viewer.
 #
 #   scripts/check_viewer.sh    # BUILD_DIR=build by default; VIEWER_CHECK_OUT=DIR keeps the pictures
-#                              # (DIR/a/side_by_side.png is docs/viewer_check.png)
+#                              # (DIR/a-final-ply/side_by_side.png is docs/viewer_check.png)
 #
 # Steps: install the viewer (Spark on three.js) and playwright-core from npm into a
 # temporary prefix (pinned by scripts/viewer/package-lock.json); build full_pipeline,
 # render_orbit and ply_tool; run the pipeline small on its synthetic input (final.ply +
-# orbit.json: a real reconstruction, ~25 s of CPU time); render two orbit cameras with render_orbit; draw
-# the same cameras in headless Chromium with software WebGL (SwiftShader) through
-# scripts/viewer/index.html; pass when the PSNR of each of the viewer's pictures
+# final.spz + orbit.json: a real reconstruction, ~25 s of CPU time); render two orbit
+# cameras with render_orbit; draw the same cameras in headless Chromium with software
+# WebGL (SwiftShader) through scripts/viewer/index.html (final.ply at both cameras,
+# final.spz at the first); pass when the PSNR of each of the viewer's pictures
 # against ours is at least VIEWER_MIN_PSNR (25 dB).
 #
 # Outside CI (CI unset or "false") it exits 0 with "skipped: ..." when node/npm or
@@ -93,20 +94,23 @@ for (const [name, i] of [["a", Math.floor(n / 3)], ["b", Math.floor((2 * n) / 3)
 echo "== drawing final.ply in headless Chromium ($CHROMIUM) with the viewer"
 OUT=${VIEWER_CHECK_OUT:-$WORK/check}
 status=0
-for view in a:0,0,0 b:0.5,0.5,0.5; do
-  name=${view%%:*}
-  bg=${view#*:}
-  "$BUILD_DIR/examples/render_orbit" --ply "$PIPE/final.ply" --camera "$PIPE/cam_$name.json" --background "$bg" \
-    --out "$PIPE/ours_$name" >/dev/null
-  echo "-- camera $name, background $bg"
-  node scripts/viewer/check.mjs --modules "$WORK/npm/node_modules" --data "$PIPE" --ply final.ply \
+# final.spz (the same scene, quantised for the web) is drawn at camera a too, against
+# the same render_orbit picture of final.ply.
+[ -f "$PIPE/final.spz" ] || { echo "FAIL: full_pipeline wrote no final.spz"; exit 1; }
+for view in a:0,0,0:final.ply a:0,0,0:final.spz b:0.5,0.5,0.5:final.ply; do
+  IFS=: read -r name bg scene <<<"$view"
+  [ -f "$PIPE/ours_$name/00000.png" ] ||
+    "$BUILD_DIR/examples/render_orbit" --ply "$PIPE/final.ply" --camera "$PIPE/cam_$name.json" --background "$bg" \
+      --out "$PIPE/ours_$name" >/dev/null
+  echo "-- $scene, camera $name, background $bg"
+  node scripts/viewer/check.mjs --modules "$WORK/npm/node_modules" --data "$PIPE" --ply "$scene" \
     --camera "cam_$name.json" --ref "ours_$name/00000.png" --bg "$bg" --min-psnr "$MIN_PSNR" --scale 1 \
-    --out "$OUT/$name" || { status=$?; break; }
+    --out "$OUT/$name-${scene/./-}" || { status=$?; break; }
 done
 end=$(date +%s)
 echo "viewer check: $((end - start)) s (install + build $((built - start)) s, scene $((scened - built)) s, viewer $((end - scened)) s)"
 case $status in
-  0) echo "PASS: the viewer's pictures of orbitforge's final.ply match render_orbit (PSNR >= $MIN_PSNR dB)" ;;
+  0) echo "PASS: the viewer's pictures of orbitforge's final.ply and final.spz match render_orbit (PSNR >= $MIN_PSNR dB)" ;;
   3) skip "Chromium could not start or has no WebGL2" ;;
   *) echo "FAIL: the viewer's picture differs from render_orbit (see above; VIEWER_CHECK_OUT=DIR keeps the pictures)"
      exit 1 ;;

@@ -1,7 +1,7 @@
-// The viewer page: Spark (three.js) draws an INRIA 3DGS PLY.
+// The viewer page: Spark (three.js) draws an INRIA 3DGS PLY or an SPZ.
 //
 // Query parameters:
-//   ply=URL        the scene (required)
+//   ply=URL        the scene, .ply or .spz (required)
 //   camera=URL     a camera file: one camera, a list, or an orbit.json (its cameras[]),
 //                  each {width, height, fx, fy, cx, cy, R (3 rows), t} with
 //                  x_cam = R x_world + t in OpenCV axes (x right, y down, z forward)
@@ -168,6 +168,10 @@ async function main() {
   } catch (e) {
     throw new Error(`${ply}: ${(e && e.message) || e}`);
   }
+  // SPZ stores RUB axes (x right, y up, z back) and Spark draws its coordinates as
+  // they are, where a PLY's are OpenCV's (y down, z forward): turning the SPZ mesh
+  // half a turn about x puts both in the same world.
+  if (/\.spz($|\?)/i.test(ply)) mesh.quaternion.set(1, 0, 0, 0);
   scene.add(mesh);
   const count = mesh.packedSplats?.numSplats ?? mesh.extSplats?.numSplats ?? mesh.splats?.numSplats;
   state.splats = count;

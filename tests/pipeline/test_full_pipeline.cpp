@@ -69,6 +69,7 @@ PipelineParams tiny_params() {
   p.threads = 2;
   p.progress = false;
   p.completion = "oracle";
+  p.static_proxy_diagnostics = true;  // opt-in; these runs cover the stage
   return p;
 }
 

@@ -62,7 +62,7 @@ struct PipelineParams {
   bool compare_g1_paper = false;    // also train G1 on the paper's V_hat (stage g1_paper)
   bool oracle_bound = false;        // train the oracle bound (stage bound; recorded inputs only)
   int render_stride = 1;            // R0 / R1 at every K-th canonical view
-  bool static_proxy_diagnostics = true;  // G0 rendered frame-varying / fixed slice / MedianGS on the orbit
+  bool static_proxy_diagnostics = false;  // opt-in: G0 rendered frame-varying / fixed slice / MedianGS on the orbit
   std::size_t init_points = 20000;  // random initial cloud when the input has no points
   int checkpoint_every = 500;       // partial training checkpoints (0 = none)
   // The published densification schedule scaled to a short budget densifies every
