@@ -265,7 +265,7 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: an under-rotated arc is brought back", 
   CHECK(res.rotation_change_deg[0] == 0);  // the held camera
   CHECK(res.center_shift[0] == 0);
   CHECK(res.rotation_change_deg.back() > 5);
-  CHECK(seconds < 10);
+  // The time is printed, not checked (speed targets live in bench/).
 }
 
 TEMPLATE_TEST_CASE("orbit_bundle_adjust: weakly matched frames follow the orbit", "[geometry][orbit_ba]", float,
