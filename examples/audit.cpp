@@ -229,8 +229,7 @@ int main(int argc, char** argv) {
       settings["frames"] = flags.frames;
       settings["cameras"] = cameras;
       settings["completion"] = p.completion;
-      settings["width"] = size[0];  // 0: the frames' own
-      settings["height"] = size[1];
+      settings["working_size"] = size.describe();
       settings["holdout_every"] = flags.holdout_every;
       settings["iters"] = p.iters_g0;
       settings["threads"] = p.threads;

@@ -201,12 +201,12 @@ int main(int argc, char** argv) {
       input = cli::load_recorded_input<S>("full_pipeline", in.colmap, flags);
     } else {
       if (!in.transforms.empty()) {
-        input = load_transforms_input<S>(in.transforms, in.images, flags.frames, size[0], size[1]);
+        input = load_transforms_input<S>(in.transforms, in.images, flags.frames, size);
       } else {
         int nw = 0, nh = 0;
         if (!in.npy_size.empty() && (std::sscanf(in.npy_size.c_str(), "%dx%d", &nw, &nh) != 2 || nw <= 0 || nh <= 0))
           throw cli::UsageError("full_pipeline: --npy-size expects WxH, got '" + in.npy_size + "'");
-        input = load_npy_input<S>(in.npy_ext, in.npy_int, in.images, nw, nh, flags.frames, size[0], size[1]);
+        input = load_npy_input<S>(in.npy_ext, in.npy_int, in.images, nw, nh, flags.frames, size);
       }
       cli::finish_recorded_input("full_pipeline", input, flags);
     }

@@ -24,7 +24,8 @@ namespace orbitforge::cli {
 inline const char* kPipelineFlagsUsage =
     "  --protocol measured|paper   the library's measured defaults (default) or the method as published\n"
     "  --frames A-B                source video frames (1-based, default 1-33)\n"
-    "  --width W --height H        working size of the frames (default 512 x 512; paper: the frames' own)\n"
+    "  --width W --height H        working size of the frames (default 512 on the longer side,\n"
+    "                              aspect kept; paper: the frames' own)\n"
     "  --holdout-every K           withhold every K-th source frame from every reconstruction (0 = none)\n"
     "  --completion oracle|perturbed|perturbed-geometric|external|none\n"
     "  --iters N --iters-g1 N      iterations of G0 and G1\n"
@@ -164,12 +165,14 @@ inline void end_pipeline_flags(PipelineFlags& f) {
   if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError("give --focal or --fov, not both");
 }
 
-// The working size a recorded input is loaded at: the flags', else the frames'
-// own under the paper's protocol (0 x 0), else 512 x 512.
-inline std::array<int, 2> working_size(const PipelineFlags& f) {
-  if (f.width > 0 || f.height > 0) return {f.width > 0 ? f.width : f.height, f.height > 0 ? f.height : f.width};
-  if (protocol_loads_native_size(f.protocol)) return {0, 0};
-  return {512, 512};
+// The working size a recorded input is loaded at: the flags' (one of --width /
+// --height alone: square), else the frames' own under the paper's protocol, else
+// 512 pixels on the frames' longer side with their aspect kept.
+inline WorkingSize working_size(const PipelineFlags& f) {
+  if (f.width > 0 || f.height > 0)
+    return WorkingSize::exact(f.width > 0 ? f.width : f.height, f.height > 0 ? f.height : f.width);
+  if (protocol_loads_native_size(f.protocol)) return WorkingSize::native();
+  return WorkingSize::longer_side(512);
 }
 
 // Withheld frames and background of a loaded recorded input, as every pipeline
@@ -190,7 +193,7 @@ template <class Scalar>
 PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
                                           const PipelineFlags& f) {
   const auto size = working_size(f);
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size[0], size[1]);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size);
   finish_recorded_input(program, input, f);
   return input;
 }
@@ -223,17 +226,7 @@ PipelineInput<Scalar> load_estimated_input(const std::string& program, const std
   const CameraStageResult cr = stage_cameras(out, p);
   if (cr.skipped && progress) std::fprintf(stderr, "   cameras: outputs verified, skipped\n");
   if (cameras_key) *cameras_key = cr.key;
-  auto wh = working_size(f);
-  const bool native = wh[0] == 0 && wh[1] == 0;  // the paper protocol: the frames' own size
-  if (!native && f.width == 0 && f.height == 0) {
-    // No size given: 512 on the longer side, keeping the frames' aspect (a video is rarely square).
-    const auto model = read_colmap_model(cr.dataset);
-    const auto& cam = model.cameras.begin()->second;
-    const double aspect = double(cam.width) / double(cam.height);
-    wh = aspect >= 1 ? std::array<int, 2>{512, std::max(8, int(std::lround(512 / aspect)))}
-                     : std::array<int, 2>{std::max(8, int(std::lround(512 * aspect))), 512};
-  }
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(cr.dataset, f.frames, wh[0], wh[1]);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(cr.dataset, f.frames, working_size(f));
   input.description = (p.video.empty() ? "images " + p.images : "video " + p.video) + " frames " + f.frames +
                       " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) + " of " +
                       std::to_string(cr.source_names.size()) + " source frames)";

@@ -179,7 +179,6 @@ Args parse(int argc, char** argv) {
   }
   if (a.colmap.empty()) throw UsageError("reconstruct: --colmap DIR is required");
   if (a.out.empty()) throw UsageError("reconstruct: --out DIR is required");
-  if (a.width == 0 && a.height == 0 && !protocol_loads_native_size(a.protocol)) a.width = a.height = 512;
   if (a.width == 0) a.width = a.height;
   if (a.height == 0) a.height = a.width;
   return a;
@@ -198,8 +197,12 @@ struct Dataset {
 // order), those without a COLMAP camera skipped; every K-th frame of the range
 // held out. Points: those at least two training frames observed.
 Dataset load(const Args& a) {
-  PipelineInput<S> in = load_colmap_input<S>(a.colmap, a.frames.empty() ? std::string("1-") : a.frames, a.width,
-                                             a.height, /*normalise=*/true);
+  // No size given: 512 pixels on the longer side, aspect kept (the paper's protocol: the frames' own).
+  const WorkingSize size = a.width > 0                              ? WorkingSize::exact(a.width, a.height)
+                           : protocol_loads_native_size(a.protocol) ? WorkingSize::native()
+                                                                    : WorkingSize::longer_side(512);
+  PipelineInput<S> in =
+      load_colmap_input<S>(a.colmap, a.frames.empty() ? std::string("1-") : a.frames, size, /*normalise=*/true);
   withhold_every(in, a.holdout_every);
   Dataset d;
   d.frame = in.frame;

@@ -59,7 +59,8 @@ TEST_CASE("frame inputs: transforms.json with an image folder, matched by file n
   const std::string tj = (f.root / "transforms.json").string();
   write_transforms_json(tj, listed);
 
-  const auto in = load_transforms_input<float>(tj, (f.root / "frames").string(), "1-5", 8, 8);
+  const auto in =
+      load_transforms_input<float>(tj, (f.root / "frames").string(), "1-5", WorkingSize::exact(8, 8));
   REQUIRE(in.cameras.size() == 6);
   CHECK(in.width == 8);
   CHECK(in.height == 8);
@@ -74,7 +75,8 @@ TEST_CASE("frame inputs: transforms.json with an image folder, matched by file n
 
   // A transforms frame whose image is not in the folder is an error naming it.
   fs::remove(f.root / "frames" / "frame_15.png");
-  CHECK_THROWS_WITH(load_transforms_input<float>(tj, (f.root / "frames").string(), "1-3", 8, 8),
+  CHECK_THROWS_WITH(
+      load_transforms_input<float>(tj, (f.root / "frames").string(), "1-3", WorkingSize::exact(8, 8)),
                     Catch::Contains("frame_15.png has no image"));
 }
 
@@ -84,7 +86,7 @@ TEST_CASE("frame inputs: transforms.json with its own file paths at the frames' 
   for (auto& c : cams) c.name = "frames/" + c.name;
   const std::string tj = (f.root / "transforms.json").string();
   write_transforms_json(tj, cams);
-  const auto in = load_transforms_input<float>(tj, "", "2-6", 0, 0);
+  const auto in = load_transforms_input<float>(tj, "", "2-6", WorkingSize::native());
   CHECK(in.width == 16);
   CHECK(in.height == 12);
   CHECK(in.source.size() == 5);
@@ -109,17 +111,29 @@ TEST_CASE("frame inputs: npy arrays, camera i for the i-th image, intrinsics fro
   write_npy(ext, {cams.size(), 3, 4}, e);
   write_npy(intr, {cams.size(), 3, 3}, k);
 
-  const auto in = load_npy_input<float>(ext, intr, (f.root / "frames").string(), 32, 24, "1-6", 16, 12);
+  const auto in = load_npy_input<float>(ext, intr, (f.root / "frames").string(), 32, 24, "1-6",
+                                        WorkingSize::exact(16, 12));
   CHECK(in.source == std::vector<int>{0, 1, 2, 3, 5});
   CHECK(in.cameras[1].camera.intrinsics.fx == Approx(20));
   CHECK(in.cameras[1].camera.intrinsics.cx == Approx(8));
   CHECK(in.cameras[5].camera.t.x() == Approx(2.5));
   CHECK(in.cameras[5].name == "frame_15.png");
 
+  // The longer side given: the frames' 4:3 aspect is kept, and the intrinsics follow.
+  const auto half = load_npy_input<float>(ext, intr, (f.root / "frames").string(), 32, 24, "1-6",
+                                          WorkingSize::longer_side(8));
+  CHECK(half.width == 8);
+  CHECK(half.height == 6);
+  CHECK(half.images[0].width == 8);
+  CHECK(half.images[0].height == 6);
+  CHECK(half.cameras[1].camera.intrinsics.fx == Approx(10));
+  CHECK(half.cameras[1].camera.intrinsics.cy == Approx(3));
+
   // One camera too few for the folder: an error that says how they pair up.
   write_npy(ext, {5, 3, 4}, std::vector<double>(e.begin(), e.begin() + 60));
   write_npy(intr, {5, 3, 3}, std::vector<double>(k.begin(), k.begin() + 45));
-  CHECK_THROWS_WITH(load_npy_input<float>(ext, intr, (f.root / "frames").string(), 0, 0, "1-5", 16, 12),
+  CHECK_THROWS_WITH(
+      load_npy_input<float>(ext, intr, (f.root / "frames").string(), 0, 0, "1-5", WorkingSize::exact(16, 12)),
                     Catch::Contains("5 cameras but"));
 }
 

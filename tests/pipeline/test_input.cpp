@@ -179,6 +179,28 @@ TEMPLATE_TEST_CASE("estimate_background: white and black studios are found, clut
   CHECK(choose_background(in).color == std::array<double, 3>{{1, 1, 1}});
 }
 
+TEST_CASE("load_colmap_input: a longer side keeps the photographs' aspect", "[pipeline][input][data]") {
+  using S = float;
+  if (!orbitforge_test::have_shared_data("middlebury/dinoSparseRing")) return;
+  const std::string dino = orbitforge_test::shared_path("middlebury/dinoSparseRing");
+  const PipelineInput<S> own = load_colmap_input<S>(dino, "1-4", WorkingSize::native());
+  REQUIRE(own.width == 640);
+  REQUIRE(own.height == 480);
+  const PipelineInput<S> in = load_colmap_input<S>(dino, "1-4", WorkingSize::longer_side(320));
+  CHECK(in.width == 320);
+  CHECK(in.height == 240);
+  const int f = in.source.front();
+  CHECK(in.images[std::size_t(f)].width == 320);
+  CHECK(in.images[std::size_t(f)].height == 240);
+  // Half the size in both directions: every intrinsic halves, so no direction is squeezed.
+  const auto& k = in.cameras[std::size_t(f)].camera.intrinsics;
+  const auto& k0 = own.cameras[std::size_t(f)].camera.intrinsics;
+  CHECK(k.fx == Approx(k0.fx / 2));
+  CHECK(k.fy == Approx(k0.fy / 2));
+  CHECK(k.cy == Approx(k0.cy / 2));
+  CHECK_THROWS_WITH(load_colmap_input<S>(dino, "1-4", WorkingSize::longer_side(4)), Catch::Contains("too small"));
+}
+
 TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses the others by name",
           "[pipeline][input][frames][data]") {
   using S = float;

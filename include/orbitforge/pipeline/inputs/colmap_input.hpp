@@ -17,6 +17,7 @@
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/inputs/working_size.hpp"
 #include "orbitforge/splat/scene_frame.hpp"
 
 namespace orbitforge {
@@ -25,17 +26,18 @@ namespace orbitforge {
 // holds images/). Frames are the image files of images/ in name order, with a
 // camera when the model registered them. `source_range` selects the source
 // frames (1-based frame numbers, e.g. "1-33"); every registered frame's image is
-// loaded and resized to width x height (intrinsics rescaled); 0 x 0 keeps the
-// frames' own size (every registered camera must then have one size).
+// loaded and resized to the working size (intrinsics rescaled). The frames' own
+// size (WorkingSize::native) needs every registered camera to have one size; a
+// longer side takes the aspect of the first registered camera.
 // normalise: cameras and points are moved, in double, into the frame fitted to
 // the registered cameras (fit_scene_frame), recorded in `frame`; else as recorded.
 template <class Scalar>
-PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range, int width,
-                                        int height, bool normalise = false) {
+PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range,
+                                        const WorkingSize& size, bool normalise = false) {
   namespace fs = std::filesystem;
-  const bool native = width == 0 && height == 0;
-  ensure(native || (width >= 8 && height >= 8), "load_colmap_input: working size ", width, "x", height,
-         " is too small");
+  size.check("load_colmap_input");
+  const bool native = size.is_native();
+  int width = size.width, height = size.height;
   const ColmapModel model = read_colmap_model(find_colmap_model_dir(dir));
   const std::string images_dir = colmap_images_dir(dir);
   ensure(!images_dir.empty(), dir, ": no images/ folder next to the COLMAP model");
@@ -62,19 +64,21 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
     in.cameras.push_back(std::move(c));
   }
   in.frame = frame;
-  if (native) {
+  if (native || size.long_side > 0) {
     const FrameCamera<Scalar>* first = nullptr;
     for (const auto& fc : in.cameras) {
       if (!fc.valid) continue;
       if (!first) first = &fc;
-      ensure(fc.camera.intrinsics.width == first->camera.intrinsics.width &&
-                 fc.camera.intrinsics.height == first->camera.intrinsics.height,
+      ensure(!native || (fc.camera.intrinsics.width == first->camera.intrinsics.width &&
+                         fc.camera.intrinsics.height == first->camera.intrinsics.height),
              dir, ": image ", fc.name, " is ", fc.camera.intrinsics.width, "x", fc.camera.intrinsics.height,
              ", the first is ", first->camera.intrinsics.width, "x", first->camera.intrinsics.height,
              "; give a working size to load frames of several sizes");
     }
-    width = first->camera.intrinsics.width;
-    height = first->camera.intrinsics.height;
+    ensure(first != nullptr, dir, ": the COLMAP model registers none of the frames");
+    const auto wh = size.for_frames(first->camera.intrinsics.width, first->camera.intrinsics.height);
+    width = wh[0];
+    height = wh[1];
   }
   in.width = width;
   in.height = height;
@@ -117,6 +121,13 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   in.description = "colmap " + dir + " frames " + (source_range.empty() ? std::string("all") : source_range);
   in.camera_path = "recorded model (a lab figure when its maker estimated it with frames outside the source)";
   return in;
+}
+
+// width x height; 0 x 0: the frames' own size.
+template <class Scalar>
+PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range, int width,
+                                        int height, bool normalise = false) {
+  return load_colmap_input<Scalar>(dir, source_range, WorkingSize::from_pair(width, height), normalise);
 }
 
 }  // namespace orbitforge

@@ -16,22 +16,25 @@
 #include "orbitforge/io/npy.hpp"
 #include "orbitforge/io/transforms_json.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/inputs/working_size.hpp"
 
 namespace orbitforge {
 
 // Frames (image paths in frame order) with one camera each (valid = false: none)
-// at width x height (0 x 0: the first camera's image size, which every frame
-// must then share). Each valid camera's intrinsics must describe its image's
-// size, unless `scale_intrinsics_to_images` (the estimator saw the frames at
-// another size, e.g. VGGT's 518 pixels wide), when they are rescaled to it.
+// at the working size (the frames' own: every frame must share the first one's;
+// a longer side: the first frame's aspect). Each valid camera's intrinsics must
+// describe its image's size, unless `scale_intrinsics_to_images` (the estimator
+// saw the frames at another size, e.g. VGGT's 518 pixels wide), when they are
+// rescaled to it.
 template <class Scalar>
 PipelineInput<Scalar> frames_input(const std::vector<std::string>& paths, std::vector<FrameCamera<Scalar>> cameras,
-                                   const std::string& source_range, int width, int height,
+                                   const std::string& source_range, const WorkingSize& size,
                                    bool scale_intrinsics_to_images = false) {
   namespace fs = std::filesystem;
   ensure(paths.size() == cameras.size(), "frames_input: ", paths.size(), " frames but ", cameras.size(), " cameras");
-  const bool native = width == 0 && height == 0;
-  ensure(native || (width >= 8 && height >= 8), "frames_input: working size ", width, "x", height, " is too small");
+  size.check("frames_input");
+  const bool native = size.is_native();
+  int width = size.width, height = size.height;
   PipelineInput<Scalar> in;
   in.images.resize(cameras.size());
   const Intrinsics<Scalar>* first = nullptr;
@@ -44,9 +47,10 @@ PipelineInput<Scalar> frames_input(const std::vector<std::string>& paths, std::v
     if (scale_intrinsics_to_images) k = k.resized(img.width, img.height);
     ensure(img.width == k.width && img.height == k.height, paths[i], ": image is ", img.width, "x", img.height,
            ", its camera's intrinsics are for ", k.width, "x", k.height);
-    if (native && width == 0) {
-      width = img.width;
-      height = img.height;
+    if (width == 0) {
+      const auto wh = size.for_frames(img.width, img.height);
+      width = wh[0];
+      height = wh[1];
     }
     ensure(!native || (img.width == width && img.height == height), paths[i], ": image is ", img.width, "x",
            img.height, ", the first is ", width, "x", height, "; give a working size to load frames of several sizes");
@@ -73,7 +77,7 @@ PipelineInput<Scalar> frames_input(const std::vector<std::string>& paths, std::v
 // (file_path relative to its folder, ".png" added when there is no extension).
 template <class Scalar>
 PipelineInput<Scalar> load_transforms_input(const std::string& transforms, const std::string& images_dir,
-                                            const std::string& source_range, int width, int height) {
+                                            const std::string& source_range, const WorkingSize& size) {
   namespace fs = std::filesystem;
   const auto cams = read_transforms_json<Scalar>(transforms);
   ensure(!cams.empty(), transforms, ": no frames");
@@ -108,7 +112,7 @@ PipelineInput<Scalar> load_transforms_input(const std::string& transforms, const
     ensure(by_file.empty(), transforms, ": frame ", by_file.empty() ? "" : by_file.begin()->first, " has no image in ",
            images_dir);
   }
-  PipelineInput<Scalar> in = frames_input(paths, std::move(frames), source_range, width, height);
+  PipelineInput<Scalar> in = frames_input(paths, std::move(frames), source_range, size);
   in.description = "transforms " + transforms + " frames " + (source_range.empty() ? "all" : source_range);
   return in;
 }
@@ -119,7 +123,7 @@ PipelineInput<Scalar> load_transforms_input(const std::string& transforms, const
 template <class Scalar>
 PipelineInput<Scalar> load_npy_input(const std::string& extrinsics, const std::string& intrinsics,
                                      const std::string& images_dir, int npy_width, int npy_height,
-                                     const std::string& source_range, int width, int height) {
+                                     const std::string& source_range, const WorkingSize& size) {
   namespace fs = std::filesystem;
   const std::vector<std::string> names = list_image_files(images_dir);
   ensure(!names.empty(), images_dir, ": no image files");
@@ -133,7 +137,7 @@ PipelineInput<Scalar> load_npy_input(const std::string& extrinsics, const std::s
   auto cams = read_npy_cameras<Scalar>(extrinsics, intrinsics, npy_width, npy_height);
   ensure(cams.size() == names.size(), extrinsics, " has ", cams.size(), " cameras but ", images_dir, " has ",
          names.size(), " images (camera i belongs to the i-th image in name order)");
-  PipelineInput<Scalar> in = frames_input(paths, std::move(cams), source_range, width, height, true);
+  PipelineInput<Scalar> in = frames_input(paths, std::move(cams), source_range, size, true);
   in.description = "npy " + extrinsics + " frames " + (source_range.empty() ? "all" : source_range);
   return in;
 }
