@@ -120,14 +120,14 @@ TEST_CASE("frame inputs: npy arrays, camera i for the i-th image, intrinsics fro
   CHECK(in.cameras[5].name == "frame_15.png");
 
   // The longer side given: the frames' 4:3 aspect is kept, and the intrinsics follow.
-  const auto half = load_npy_input<float>(ext, intr, (f.root / "frames").string(), 32, 24, "1-6",
-                                          WorkingSize::longer_side(8));
-  CHECK(half.width == 8);
-  CHECK(half.height == 6);
-  CHECK(half.images[0].width == 8);
-  CHECK(half.images[0].height == 6);
-  CHECK(half.cameras[1].camera.intrinsics.fx == Approx(10));
-  CHECK(half.cameras[1].camera.intrinsics.cy == Approx(3));
+  const auto smaller = load_npy_input<float>(ext, intr, (f.root / "frames").string(), 32, 24, "1-6",
+                                             WorkingSize::longer_side(12));
+  CHECK(smaller.width == 12);
+  CHECK(smaller.height == 9);
+  CHECK(smaller.images[0].width == 12);
+  CHECK(smaller.images[0].height == 9);
+  CHECK(smaller.cameras[1].camera.intrinsics.fx == Approx(15));
+  CHECK(smaller.cameras[1].camera.intrinsics.cy == Approx(4.5));
 
   // One camera too few for the folder: an error that says how they pair up.
   write_npy(ext, {5, 3, 4}, std::vector<double>(e.begin(), e.begin() + 60));
