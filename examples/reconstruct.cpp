@@ -54,12 +54,14 @@ const char* kUsage =
     "                   [--min-densify-interval N] [--scale-offset log|additive] [--protocol measured|paper]\n"
     "                   [--coarse-levels L [--coarse-fraction F]] [--max-gaussians N]\n"
     "                   [--still-check N [--still-gain DB]] [--plateau-window N [--plateau-tolerance X]]\n"
-    "                   [--scaling-lr X] [--deform-lr-final X] [--time-noise S] --out DIR\n"
+    "                   [--scaling-lr X] [--deform-lr-final X] [--time-noise S] [--max-screen-fraction F] --out DIR\n"
     "  --protocol paper: the DeformableGS backend's schedule, learning rates and 8 x 256 network, unscaled,\n"
     "                    10,000 iterations, deformable, frames at their own size (flags given override)\n"
     "  --scaling-lr, --deform-lr-final, --time-noise: one learning rate or the annealed noise on the\n"
     "                    time code (the backend's 0.1 for real scenes; 0 = off), to measure one departure\n"
-    "                    from the paper at a time\n";
+    "                    from the paper at a time\n"
+    "  --max-screen-fraction F: prune Gaussians wider on screen than F of the frames' longer side\n"
+    "                    (0: 3DGS's 20 pixels)\n";
 
 using cli::UsageError;
 
@@ -82,7 +84,7 @@ struct Args {
   long max_gaussians = 0;
   // Single settings, for measuring a departure from the paper one at a time
   // (unset: the protocol's value).
-  std::optional<double> scaling_lr, deform_lr_final, time_noise;
+  std::optional<double> scaling_lr, deform_lr_final, time_noise, max_screen_fraction;
   double minutes = 0;
   bool deformable = false;
   std::array<double, 3> background{{0, 0, 0}};
@@ -154,6 +156,7 @@ Args parse(int argc, char** argv) {
     else if (f == "--scaling-lr") a.scaling_lr = to_nonnegative(f, value());
     else if (f == "--deform-lr-final") a.deform_lr_final = to_nonnegative(f, value());
     else if (f == "--time-noise") a.time_noise = to_nonnegative(f, value());
+    else if (f == "--max-screen-fraction") a.max_screen_fraction = to_nonnegative(f, value());
     else if (f == "--minutes") {
       a.minutes = to_double(f, value());
       if (a.minutes <= 0) throw UsageError("reconstruct: --minutes must be positive");
@@ -286,6 +289,7 @@ int run(const Args& a) {
   p.scaling_lr = a.scaling_lr.value_or(p.scaling_lr);
   p.deform_lr_final = a.deform_lr_final.value_or(p.deform_lr_final);
   p.time_noise = a.time_noise.value_or(p.time_noise);
+  p.densify_params.max_screen_fraction = a.max_screen_fraction.value_or(p.densify_params.max_screen_fraction);
   InitParams ip;
   ip.seed = a.seed;
   GaussianScene<S> init;
@@ -329,10 +333,10 @@ int run(const Args& a) {
                    pr.iteration, pr.iterations, pr.loss, pr.psnr, pr.gaussians, 1e3 * pr.seconds_per_iteration);
     } else if (pr.iteration % line_every == 0 || pr.iteration == 1) {
       std::fprintf(stderr,
-                   "iteration %d/%d loss %.5f psnr %.3f gaussians %zu (cloned %zu split %zu pruned %zu) sec/it %.4f "
-                   "elapsed %.1f s\n",
+                   "iteration %d/%d loss %.5f psnr %.3f gaussians %zu (cloned %zu split %zu pruned %zu, %zu of them "
+                   "for size) sec/it %.4f elapsed %.1f s\n",
                    pr.iteration, pr.iterations, pr.loss, pr.psnr, pr.gaussians, pr.cloned, pr.split, pr.pruned,
-                   pr.seconds_per_iteration, pr.elapsed_seconds);
+                   pr.pruned_by_size, pr.seconds_per_iteration, pr.elapsed_seconds);
     }
     const bool stop = a.minutes > 0 && train_seconds >= 60.0 * a.minutes;
     if (a.eval_every > 0 && !d.holdout.empty() && (pr.iteration % a.eval_every == 0 || stop)) {

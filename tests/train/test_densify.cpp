@@ -95,6 +95,7 @@ TEMPLATE_TEST_CASE("clone, split and prune on a hand-built scene", "[train][dens
     CHECK(plan.cloned == 2);
     CHECK(plan.split == 1);
     CHECK(plan.pruned == (size_prune ? 4u : 2u));
+    CHECK(plan.pruned_by_size == (size_prune ? 2u : 0u));  // gaussians 4 and 5; 3 and 7 go for their opacity
     REQUIRE(s.size() == plan.new_size());
     s.check_consistent();
 

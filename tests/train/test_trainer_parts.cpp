@@ -231,7 +231,7 @@ TEMPLATE_TEST_CASE("densify driver: opacity resets zero the opacities' moments; 
   const std::vector<TestType> grad(4, TestType(0));
   const std::vector<std::int32_t> radius(4, 3);
   const TrainSchedule s = TrainSchedule::make(p);
-  DensifyDriver<TestType> driver(p, s.densify);
+  DensifyDriver<TestType> driver(p, s.densify, 64);
   driver.step(500, 1, grad, radius, scene, stats, adam, TestType(1), rng);  // an opacity reset, level 1
   CHECK(stats.count == std::vector<std::uint32_t>(4, 1));
   CHECK(stats.max_radius == std::vector<TestType>(4, TestType(6)));  // radii in full-size pixels
@@ -239,7 +239,45 @@ TEMPLATE_TEST_CASE("densify driver: opacity resets zero the opacities' moments; 
   CHECK(adam.group(kMeansGroup).m == std::vector<TestType>(12, TestType(1)));
   CHECK(scene.opacity_logits[0] < TestType(-4));
   p.densify = false;
-  DensifyDriver<TestType> off(p, s.densify);
+  DensifyDriver<TestType> off(p, s.densify, 64);
   off.step(500, 0, grad, radius, scene, stats, adam, TestType(1), rng);
   CHECK(stats.count == std::vector<std::uint32_t>(4, 1));
+}
+
+TEMPLATE_TEST_CASE("densify driver: with a random background, the screen-size limit is a fraction of the frames' "
+                   "longer side",
+                   "[train][parts]", float, double) {
+  using S = TestType;
+  TrainParams p;
+  p.random_background = true;
+  p.densify_params.max_screen_fraction = 0.25;
+  p.densify_params.min_gaussians = 0;
+  const TrainSchedule s = TrainSchedule::make(p);
+  // At the first densification after the first opacity reset (size pruning on),
+  // two opaque Gaussians, 40 and 3 pixels in radius on screen.
+  const int it = (s.densify.opacity_reset_interval / s.densify.densify_interval + 1) * s.densify.densify_interval;
+  REQUIRE(s.densify.densifies_at(it));
+  REQUIRE(s.densify.size_prune_at(it));
+  for (int side : {128, 256, 0}) {  // 0: a fixed background below, 3DGS's 20 pixels
+    p.random_background = side != 0;
+    if (side == 0) side = 256;
+    GaussianScene<S> scene;
+    scene.resize(2, 0);
+    scene.opacity_logits = {S(3), S(3)};
+    scene.rotations = {S(1), S(0), S(0), S(0), S(1), S(0), S(0), S(0)};
+    for (auto& v : scene.log_scales) v = std::log(S(0.001));
+    Adam<S> adam = make_gaussian_adam<S>(p, 2);
+    DensifyStats<S> stats;
+    stats.reset(2);
+    std::mt19937 rng(0);
+    DensifyDriver<S> driver(p, s.densify, side);
+    const DensifyCounts c = driver.step(it, 0, std::vector<S>(2, S(0)), std::vector<std::int32_t>{40, 3}, scene,
+                                        stats, adam, S(1), rng);
+    INFO("longer side " << side << ", random background " << p.random_background);
+    // 0.25 of 128 is 32 pixels: too large; of 256, 64 pixels: it stays; 20 pixels: too large.
+    const bool pruned = side == 128 || !p.random_background;
+    CHECK(c.pruned == (pruned ? 1u : 0u));
+    CHECK(c.pruned_by_size == c.pruned);
+    CHECK(scene.size() == (pruned ? 1u : 2u));
+  }
 }

@@ -67,6 +67,7 @@ inline TrainParams paper_train_params(int iterations = 10000) {
   t.lambda_dssim = 0.2;
   t.densify_schedule = DensifySchedule{};  // from 500 until 15,000 every 100, reset every 3,000
   t.densify_params = DensifyParams{};      // gradient 2e-4, percent dense 0.01, no Gaussian budget
+  t.densify_params.max_screen_fraction = 0;  // 3DGS's 20-pixel screen-size limit, whatever the background
   t.warmup_iterations = 3000;
   t.deform_lr_init = 8e-4;
   t.deform_lr_final = 1.6e-6;

@@ -78,6 +78,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
                           {"min_gaussians", d.min_gaussians},
                           {"schedule", {s.densify_from, s.densify_until, s.densify_interval, s.opacity_reset_interval}},
                           {"min_interval", t.min_densify_interval}};
+  if (t.densify && t.random_background) j["densification"]["max_screen_fraction"] = d.max_screen_fraction;
   if (t.deformable) {
     const auto& f = t.field;
     j["deformation"] = {{"field", {{"depth", f.depth},

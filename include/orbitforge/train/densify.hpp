@@ -54,6 +54,15 @@ struct DensifyParams {
   double split_scale_divisor = 1.6; // children scales = parent / (0.8 * split_count)
   double max_world_scale = 0.1;     // size prune: max scale > max_world_scale * extent
   double max_screen_radius = 20;    // size prune: largest 2D radius seen > this (pixels)
+  // With a random background (the frames' borders disagree, so the model must
+  // draw the backdrop too) and > 0: the screen-size limit is this fraction of
+  // the frames' longer side instead (DensifyDriver sets max_screen_radius from
+  // it). 3DGS's 20 pixels, set for frames about 1,000 pixels wide with a normal
+  // lens, prune the Gaussians that cover a backdrop faster than densification
+  // makes them: with a long lens (Middlebury's 11 degrees at 320 pixels) they cap
+  // a Gaussian at 0.4 % of the object, and deformable models fell to 1-5k
+  // Gaussians. 0 keeps the pixel limit everywhere.
+  double max_screen_fraction = 0.15;
   double reset_opacity = 0.01;      // opacity reset: opacity = min(opacity, this)
   // A Gaussian budget (0 = none, as 3DGS): a densification step adds at most as
   // many Gaussians as keep the count within it, taking the candidates with the
@@ -163,8 +172,10 @@ struct DensifyPlan {
   std::vector<std::uint8_t> keep;          // [N_old] 1 = kept
   std::vector<std::size_t> appended_from;  // [N_appended] source index in the old scene
   // Gaussians cloned, split (parents, removed), and pruned among the others (old
-  // ones); spared: old ones the pruning rules removed but the floor kept.
-  std::size_t cloned = 0, split = 0, pruned = 0, spared = 0;
+  // ones); spared: old ones the pruning rules removed but the floor kept;
+  // pruned_by_size: of the pruned, those opaque enough to stay but too large
+  // (on screen or in the world).
+  std::size_t cloned = 0, split = 0, pruned = 0, spared = 0, pruned_by_size = 0;
 
   std::size_t new_size() const {
     std::size_t k = 0;
@@ -301,11 +312,14 @@ DensifyPlan densify_and_prune(GaussianScene<Scalar>& scene, const DensifyStats<S
 
   // Prune old and new.
   std::vector<std::size_t> pruned_old;
+  std::vector<std::uint8_t> too_large(n, 0);
   for (std::size_t i = 0; i < n; ++i) {
     if (!plan.keep[i]) continue;
     bool prune = pruned_by_opacity(i);
-    if (size_prune)
-      prune = prune || double(stats.max_radius[i]) > params.max_screen_radius || max_scale(scene, i) > world_limit;
+    if (size_prune && !prune) {
+      prune = double(stats.max_radius[i]) > params.max_screen_radius || max_scale(scene, i) > world_limit;
+      too_large[i] = prune ? 1 : 0;
+    }
     if (prune) {
       plan.keep[i] = 0;
       pruned_old.push_back(i);
@@ -335,6 +349,7 @@ DensifyPlan densify_and_prune(GaussianScene<Scalar>& scene, const DensifyStats<S
     }
   }
   plan.pruned = pruned_old.size() - plan.spared;
+  for (std::size_t i : pruned_old) plan.pruned_by_size += plan.keep[i] ? 0 : too_large[i];
 
   // Rewrite the scene: kept old ones in order, then the kept new ones.
   auto rebuild = [&](std::vector<Scalar>& dst, const std::vector<Scalar>& extra, std::size_t stride) {

@@ -20,6 +20,7 @@ namespace orbitforge {
 // What one iteration's density control did (zero when it did not densify).
 struct DensifyCounts {
   std::size_t cloned = 0, split = 0, pruned = 0, spared = 0;  // spared: kept by DensifyParams::min_gaussians
+  std::size_t pruned_by_size = 0;  // of the pruned, those removed for their size only
 };
 
 // White background: 3DGS then also resets opacities once at densify_from.
@@ -31,9 +32,14 @@ template <class Scalar>
 class DensifyDriver {
  public:
   DensifyDriver() = default;
-  // `schedule`: the densification schedule scaled to the budget (TrainSchedule).
-  DensifyDriver(const TrainParams& p, const DensifySchedule& schedule)
-      : enabled_(p.densify), params_(p.densify_params), schedule_(schedule), white_(white_background(p)) {}
+  // `schedule`: the densification schedule scaled to the budget (TrainSchedule);
+  // `image_long_side`: the training frames' longer side in pixels (for
+  // DensifyParams::max_screen_fraction, with a random background).
+  DensifyDriver(const TrainParams& p, const DensifySchedule& schedule, int image_long_side)
+      : enabled_(p.densify), params_(p.densify_params), schedule_(schedule), white_(white_background(p)) {
+    if (p.random_background && params_.max_screen_fraction > 0 && image_long_side > 0)
+      params_.max_screen_radius = params_.max_screen_fraction * double(image_long_side);
+  }
 
   // Iteration `it`, after the optimizer step: `ndc_grad_norm` and `radius` are
   // the iteration's render's, at image level `level` (radii are counted in
@@ -83,7 +89,7 @@ class DensifyDriver {
     source.resize(plan.new_size(), -1);
     for (int g = 0; g < adam.group_count(); ++g) adam.gather(g, source);
     stats.reset(scene.size());
-    return {plan.cloned, plan.split, plan.pruned, plan.spared};
+    return {plan.cloned, plan.split, plan.pruned, plan.spared, plan.pruned_by_size};
   }
 
   bool enabled_ = false;

@@ -1,6 +1,7 @@
 #pragma once
 // One training frame: an image, its camera, its time code and its sampling
 // weight; and the check the Trainer makes of a set of them.
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <string>
@@ -20,6 +21,14 @@ struct TrainFrame {
   std::string name;
   int repeats = 1;         // times the frame is drawn per pass over the frames (sampling weight, >= 1)
 };
+
+// The longest side, in pixels, of any frame's image.
+template <class Scalar>
+int longer_side(const std::vector<TrainFrame<Scalar>>& frames) {
+  int n = 0;
+  for (const auto& f : frames) n = std::max({n, f.image.width, f.image.height});
+  return n;
+}
 
 // Refuses an empty set and any frame whose image is not RGB of its camera's size,
 // whose camera or time code is not finite, or whose repeats lie outside 1..1000.

@@ -27,6 +27,7 @@ struct TrainProgress {
   RenderStats render;  // the renderer's own breakdown of this iteration's render and backward
   // The last densification step (cumulative counts since the trainer started).
   std::size_t cloned = 0, split = 0, pruned = 0;
+  std::size_t pruned_by_size = 0;  // of the pruned, those removed for their size only
   // Gaussians the pruning floor kept (DensifyParams::min_gaussians), cumulative:
   // above 0, the schedule would have pruned the model below its floor.
   std::size_t spared = 0;

@@ -100,7 +100,7 @@ class Trainer {
     }
     s_.rng.seed(params.seed);
     s_.order = FrameOrder(std::move(repeats));
-    densify_ = DensifyDriver<Scalar>(params, schedule_.densify);
+    densify_ = DensifyDriver<Scalar>(params, schedule_.densify, longer_side(frames_));
     plateau_ = PlateauStop::make(params, s_.order.pass_length(),
                                  plateau_quiet_from(params, schedule_, still_check_iteration()));
   }
@@ -238,6 +238,7 @@ class Trainer {
     const DensifyCounts dc = densify_.step(it, level, grad->screen_grad_ndc_norm, renderer_.projected().radius,
                                            s_.scene, s_.stats, s_.adam, s_.extent, s_.rng);
     last_.cloned += dc.cloned, last_.split += dc.split, last_.pruned += dc.pruned, last_.spared += dc.spared;
+    last_.pruned_by_size += dc.pruned_by_size;
     last_.densify_ms = lap();
 
     if (s_.field && it == still_check_iteration()) check_still();
