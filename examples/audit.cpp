@@ -31,6 +31,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <memory>
 #include <optional>
 #include <set>
 #include <string>
@@ -52,19 +53,15 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const std::string kUsage =
-    std::string("usage: audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [flags]\n"
-                "             [--shard i/n | --shard-count N] [--report-only] --out DIR\n"
-                "       audit --write-synthetic DIR [--width W --height H] [--seed S]\n"
-                "  (audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound)\n"
-                "  --cameras recorded          each DIR's own model (default; a lab figure when it saw every frame)\n"
-                "  --cameras estimated         COLMAP on DIR/images' source frames alone; DIR's model scores the run\n"
-                "  --shard i/n                 every n-th input (sorted), the i-th of them; without it a Slurm array\n"
-                "                              task's SLURM_ARRAY_TASK_ID/_MIN/_COUNT choose the shard\n"
-                "  --shard-count N             with JOB_COMPLETION_INDEX (Kubernetes Indexed Job, 0-based): n = N\n"
-                "  --write-synthetic DIR       write the embedded synthetic input as a COLMAP folder and exit\n"
-                "                              (default 96 x 96; --seed S picks another scene)\n") +
-    cli::kPipelineFlagsUsage;
+const char* kDescription =
+    "audit: the whole pipeline over many recorded inputs (COLMAP folders), one after the other, and one table of\n"
+    "their report.json figures with median and P90 rows.\n"
+    "  audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [flags]\n"
+    "        [--shard i/n | --shard-count N] [--report-only] --out DIR\n"
+    "  audit --write-synthetic DIR [--width W --height H] [--seed S]\n"
+    "Each input runs into OUT/<basename of DIR>/ exactly as full_pipeline --colmap DIR would, and resumes like it.\n"
+    "Audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound. Every run writes OUT/settings.toml,\n"
+    "which --config replays.";
 
 // The folder name an input's outputs go to: the last component of its path.
 std::string input_name(const std::string& dir) {
@@ -95,66 +92,76 @@ std::optional<std::string> getenv_lookup(const std::string& name) {
   return v ? std::optional<std::string>(v) : std::nullopt;
 }
 
+// Everything the command line sets.
+struct Args {
+  std::vector<std::string> inputs;
+  std::string out, shard_text, shard_count_text, synthetic_dir, cameras = "recorded";
+  bool report_only = false;
+  cli::PipelineFlags flags;
+};
+
+std::unique_ptr<CLI::App> define(Args& a) {
+  auto app = std::make_unique<CLI::App>(kDescription, "audit");
+  cli::setup(*app, /*with_config=*/true);
+  const char* audit = "Audit";
+  app->add_option("--inputs", a.inputs, "the input folders (COLMAP: images/ + sparse/0), each a row")->group(audit);
+  app->add_option("--cameras", a.cameras,
+                  "recorded: each DIR's own model (a lab figure when it saw every frame); estimated: COLMAP on "
+                  "DIR/images' source frames alone, and DIR's model only scores the run")
+      ->check(CLI::IsMember({"recorded", "estimated"}))
+      ->group(audit);
+  app->add_option("--shard", a.shard_text,
+                  "i/n: every n-th input (sorted), the i-th of them; without it a Slurm array task's "
+                  "SLURM_ARRAY_TASK_ID/_MIN/_COUNT choose the shard")
+      ->group(audit);
+  app->add_option("--shard-count", a.shard_count_text,
+                  "N: with JOB_COMPLETION_INDEX (Kubernetes Indexed Job, 0-based): n = N")
+      ->group(audit);
+  app->add_flag("--report-only", a.report_only, "run nothing; read OUT/<name>/report.json")->group(audit);
+  app->add_option("--write-synthetic", a.synthetic_dir,
+                  "write the embedded synthetic input as a COLMAP folder and exit (default 96 x 96; --seed S picks "
+                  "another scene)")
+      ->group(audit);
+  cli::add_pipeline_flags(*app, a.flags);
+  app->add_option("--out", a.out, "output folder: OUT/<name>/ per input, and the tables");
+  return app;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   return cli::run([&]() -> int {
-    std::vector<std::string> inputs;
-    std::string out, shard_text, shard_count_text, synthetic_dir;
-    cli::PipelineFlags flags;
-    flags.holdout_every = 8;  // supported views scored on source frames no reconstruction trained on
-    flags.params.compare_g1_paper = flags.params.oracle_bound = true;
-    cli::begin_pipeline_flags("audit", argc, argv, flags);
-    bool report_only = false, completion_set = false;
-    std::string cameras = "recorded";
-    cli::ArgWalker a("audit", argc, argv);
-    bool more = a.next();
-    while (more) {
-      const std::string f = a.flag();
-      if (f == "--inputs") {
-        bool any = false;
-        while ((more = a.next()) && a.flag().rfind("--", 0) != 0) {
-          inputs.push_back(a.flag());
-          any = true;
-        }
-        if (!any) throw cli::UsageError("audit: --inputs needs at least one folder\n" + kUsage);
-        continue;
-      }
-      if (f == "--completion") completion_set = true;
-      if (cli::parse_pipeline_flag("audit", a, flags)) {
-      } else if (f == "--shard") shard_text = a.value();
-      else if (f == "--shard-count") shard_count_text = a.value();
-      else if (f == "--write-synthetic") synthetic_dir = a.value();
-      else if (f == "--cameras") {
-        cameras = a.value();
-        if (cameras != "recorded" && cameras != "estimated")
-          throw cli::UsageError("audit: --cameras must be recorded or estimated, got '" + cameras + "'");
-      }
-      else if (f == "--report-only") report_only = true;
-      else if (f == "--out") out = a.value();
-      else if (f == "-h" || f == "--help") {
-        std::cout << kUsage;
-        return 0;
-      } else
-        throw cli::UsageError("audit: unknown argument '" + f + "'\n" + kUsage);
-      more = a.next();
-    }
-    cli::end_pipeline_flags(flags);
-    const PipelineParams& p = flags.params;
-    if (!synthetic_dir.empty()) {
+    Args args;
+    // Audit defaults: supported views scored on source frames no reconstruction trained on, and both comparisons.
+    args.flags.holdout_every = 8;
+    args.flags.params.compare_g1_paper = args.flags.params.oracle_bound = true;
+    const std::unique_ptr<CLI::App> app = cli::parse_with_protocol(
+        args, argc, argv, define, [](const Args& a) { return a.flags.protocol; },
+        [](Args& a, Protocol p) { cli::begin_pipeline_flags(a.flags, p); });
+    cli::end_pipeline_flags(*app, args.flags);
+    const std::vector<std::string>& inputs = args.inputs;
+    const std::string &out = args.out, &cameras = args.cameras;
+    const bool report_only = args.report_only, completion_set = app->count("--completion") > 0;
+    const cli::PipelineFlags& flags = args.flags;
+    const std::string usage_hint = "\n(audit --help lists every flag)";
+    PipelineParams p = flags.params;
+    if (!args.synthetic_dir.empty()) {
       if (!inputs.empty() || !out.empty())
         throw cli::UsageError("audit: --write-synthetic DIR runs on its own (no --inputs, no --out)");
-      write_synthetic(synthetic_dir, flags);
+      write_synthetic(args.synthetic_dir, flags);
       return 0;
     }
-    if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required\n" + kUsage);
-    if (out.empty()) throw cli::UsageError("audit: --out DIR is required\n" + kUsage);
+    if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required" + usage_hint);
+    // CLI11 takes the word after a bare --inputs as its value, even a flag.
+    for (const auto& dir : inputs)
+      if (dir.rfind("-", 0) == 0) throw cli::UsageError("audit: --inputs needs at least one folder, got '" + dir + "'");
+    if (out.empty()) throw cli::UsageError("audit: --out DIR is required" + usage_hint);
     // The oracle reads frames the method would not have: an audit says which completion it measured.
     if (!report_only && !completion_set)
-      throw cli::UsageError("audit: name the completion (--completion oracle|perturbed|external|none)\n" + kUsage);
+      throw cli::UsageError("audit: name the completion (--completion oracle|perturbed|external|none)" + usage_hint);
     AuditShardChoice choice;
     try {
-      choice = choose_shard(shard_text, shard_count_text, getenv_lookup);
+      choice = choose_shard(args.shard_text, args.shard_count_text, getenv_lookup);
     } catch (const Error& e) {
       throw cli::UsageError(std::string("audit: shard: ") + e.what());
     }
@@ -173,6 +180,8 @@ int main(int argc, char** argv) {
 
     const std::vector<std::string> mine = shard_inputs(inputs, shard);
     fs::create_directories(out);
+    // The settings as this audit resolved them (OUT/settings.toml), recorded in each input's report.json too.
+    if (!report_only) p.invocation = cli::record_invocation(*app, argc, argv, out);
     std::vector<AuditRow> rows;
     for (std::size_t k = 0; k < mine.size(); ++k) {
       const std::string& dir = mine[k];

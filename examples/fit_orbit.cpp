@@ -29,11 +29,12 @@ using namespace orbitforge;
 
 namespace {
 
-const char* kUsage =
-    "usage: fit_orbit (--colmap DIR | --transforms FILE | --npy-extrinsics F --npy-intrinsics F --npy-size WxH |\n"
-    "                  --synthetic) [--frames A-B] [--views 361] [--width 896 --height 512]\n"
-    "                 [--elevation-offset 10] [--circle-fit geometric|kasa] [--anchors source_aligned|target_half]\n"
-    "                 --out orbit.json [--export-colmap DIR] [--export-transforms FILE]\n";
+const char* kDescription =
+    "fit_orbit: the canonical 360-degree orbit from a source video's estimated cameras.\n"
+    "  fit_orbit (--colmap DIR | --transforms FILE | --npy-extrinsics F --npy-intrinsics F --npy-size WxH |\n"
+    "             --synthetic) [flags] --out orbit.json [--export-colmap DIR] [--export-transforms FILE]\n"
+    "--frames counts every frame of the video, registered or not, as the pipeline does. On bad arguments or\n"
+    "inputs: a message naming the problem, exit status 2 or 1, and no orbit.json.";
 
 struct Args {
   std::string colmap, transforms, npy_ext, npy_int, npy_size, frames, out, export_colmap, export_transforms;
@@ -44,46 +45,44 @@ struct Args {
 
 Args parse(int argc, char** argv) {
   Args a;
-  cli::ArgWalker w("fit_orbit", argc, argv);
-  auto integer = [&](long lo) { const std::string f = w.flag(); return int(cli::parse_int("fit_orbit", f, w.value(), lo)); };
-  while (w.next()) {
-    const std::string f = w.flag();
-    if (f == "--colmap") a.colmap = w.value();
-    else if (f == "--transforms") a.transforms = w.value();
-    else if (f == "--npy-extrinsics") a.npy_ext = w.value();
-    else if (f == "--npy-intrinsics") a.npy_int = w.value();
-    else if (f == "--npy-size") a.npy_size = w.value();
-    else if (f == "--synthetic") a.synthetic = true;
-    else if (f == "--frames") {
-      a.frames = w.value();
-      a.frames_given = true;
-      try {
-        parse_frame_range(a.frames);
-      } catch (const Error& e) {
-        throw cli::UsageError(std::string("fit_orbit: --frames: ") + e.what());
-      }
-    }
-    else if (f == "--views") a.orbit.views = int(cli::parse_int("fit_orbit", f, w.value(), 3, kMaxOrbitViews));
-    else if (f == "--width") a.orbit.width = integer(1);
-    else if (f == "--height") a.orbit.height = integer(1);
-    else if (f == "--elevation-offset") a.orbit.elevation_offset_deg = cli::parse_double("fit_orbit", f, w.value());
-    else if (f == "--circle-fit") a.circle = w.value();
-    else if (f == "--anchors") a.anchors = w.value();
-    else if (f == "--out") a.out = w.value();
-    else if (f == "--export-colmap") a.export_colmap = w.value();
-    else if (f == "--export-transforms") a.export_transforms = w.value();
-    else w.unknown();
-  }
+  CLI::App app(kDescription, "fit_orbit");
+  cli::setup(app);
+  const char* input = "Input (exactly one)";
+  app.add_option("--colmap", a.colmap, "a COLMAP dataset (images/ + sparse/0)")->group(input);
+  app.add_option("--transforms", a.transforms, "cameras from transforms.json")->group(input);
+  app.add_option("--npy-extrinsics", a.npy_ext, "VGGT-style camera arrays (with --npy-intrinsics, --npy-size)")
+      ->group(input);
+  app.add_option("--npy-intrinsics", a.npy_int, "see --npy-extrinsics")->group(input);
+  app.add_option("--npy-size", a.npy_size, "WxH, the estimator's image size (required with .npy cameras)")
+      ->group(input);
+  app.add_flag("--synthetic", a.synthetic,
+               "the project's own deterministic recorded input (a partial arc with noise and drift), so the "
+               "program runs on a fresh machine with no data")
+      ->group(input);
+  app.add_option("--frames", a.frames, "source video frames A-B (1-based, counting every frame; default all)")
+      ->check(cli::frame_range());
+  app.add_option("--views", a.orbit.views, "views of the canonical orbit")
+      ->transform(cli::at_least(3))
+      ->check(CLI::Range(3, kMaxOrbitViews));
+  app.add_option("--width", a.orbit.width, "canonical view width")->transform(cli::at_least(1));
+  app.add_option("--height", a.orbit.height, "canonical view height")->transform(cli::at_least(1));
+  app.add_option("--elevation-offset", a.orbit.elevation_offset_deg, "degrees above the source cameras")
+      ->check(cli::finite());
+  app.add_option("--circle-fit", a.circle, "geometric or kasa")->check(CLI::IsMember({"geometric", "kasa"}));
+  app.add_option("--anchors", a.anchors, "source_aligned or target_half")
+      ->check(CLI::IsMember({"source_aligned", "target_half"}));
+  app.add_option("--out", a.out, "the orbit file to write")->required();
+  app.add_option("--export-colmap", a.export_colmap, "also write the orbit's cameras as a COLMAP text model");
+  app.add_option("--export-transforms", a.export_transforms, "also write them as transforms.json");
+  cli::parse(app, argc, argv);
+  a.frames_given = app.count("--frames") > 0;
+  if (a.frames_given) cli::recheck(app.get_name(), "--frames", a.frames, cli::frame_range());
   const int inputs = int(!a.colmap.empty()) + int(!a.transforms.empty()) + int(!a.npy_ext.empty() || !a.npy_int.empty()) +
                      int(a.synthetic);
-  auto usage = [](bool ok, const char* message) {
-    if (!ok) throw cli::UsageError(std::string("fit_orbit: ") + message);
-  };
-  usage(inputs == 1, "give exactly one input: --colmap, --transforms, --npy-extrinsics/--npy-intrinsics or --synthetic");
-  usage(!a.out.empty(), "--out orbit.json is required");
-  usage(a.circle == "geometric" || a.circle == "kasa", "--circle-fit must be geometric or kasa");
+  if (inputs != 1)
+    throw cli::UsageError(
+        "fit_orbit: give exactly one input: --colmap, --transforms, --npy-extrinsics/--npy-intrinsics or --synthetic");
   a.orbit.circle_fit = a.circle == "kasa" ? CircleFitMethod::kasa : CircleFitMethod::geometric;
-  usage(a.anchors == "source_aligned" || a.anchors == "target_half", "--anchors must be source_aligned or target_half");
   return a;
 }
 
@@ -108,10 +107,6 @@ std::vector<FrameCamera<double>> load_cameras(const Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc == 1 || (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help"))) {
-    std::cout << kUsage;
-    return argc == 1 ? 2 : 0;
-  }
   return cli::run([&] {
     const Args a = parse(argc, argv);
     // --frames counts every frame of the video, registered or not, as the

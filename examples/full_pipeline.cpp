@@ -22,6 +22,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <memory>
 #include <string>
 
 #include "cli.hpp"
@@ -38,26 +39,17 @@ using S = float;
 
 namespace {
 
-const std::string kUsage = std::string(
-    "usage: full_pipeline INPUT [flags] --out DIR\n"
-    "       full_pipeline   (no arguments: embedded synthetic input -> ./out/pipeline)\n"
-    "INPUT, the recorded video (frames in name order; --frames picks the source):\n"
-    "  --video FILE                a video ffmpeg reads; frames -> OUT/cameras/images, cameras of the\n"
-    "                              source frames only by COLMAP (needs the ffmpeg and colmap programs)\n"
-    "  --images DIR                a folder of frames; cameras of the source frames by COLMAP\n"
-    "  --colmap DIR                a COLMAP dataset (images/ + sparse/0) with cameras already estimated\n"
-    "  --transforms FILE [--images DIR]   cameras from transforms.json (frames: its file_paths, or DIR)\n"
-    "  --images DIR --npy-extrinsics F --npy-intrinsics F [--npy-size WxH]\n"
-    "                              VGGT-style arrays, camera i for the i-th image of DIR; WxH is the\n"
-    "                              size the estimator saw (default: the frames')\n"
-    "  --fps R                     --video: resample to R frames per second (default: every frame)\n"
-    "  --camera-model SIMPLE_PINHOLE|PINHOLE   COLMAP's one camera (default SIMPLE_PINHOLE)\n"
-    "  --reference DIR             with --video / --images: a COLMAP folder of the same video estimated\n"
-    "                              from every frame, used only to score the run (and by the oracle)\n"
-    "  With --video or --images alone only the source frames get cameras. A recorded input runs\n"
-    "  with --completion external unless one is named (oracle and perturbed read the gap frames).\n"
-    "  --prompt TEXT               the scene's description for the completion request\n") +
-                           cli::kPipelineFlagsUsage;
+const char* kDescription =
+    "full_pipeline: the whole method, from a recorded video to a closed-orbit Gaussian Splatting scene\n"
+    "(final.ply, final.spz) with a report.\n"
+    "  full_pipeline INPUT [flags] --out DIR\n"
+    "  full_pipeline   (no arguments: the embedded synthetic input, oracle completion, small size -> ./out/pipeline)\n"
+    "INPUT is one of --video, --images, --colmap, --transforms [--images] or --images with --npy-extrinsics and\n"
+    "--npy-intrinsics; frames in name order, --frames picks the source. With --video or --images alone only the\n"
+    "source frames get cameras (COLMAP), and a recorded input runs with --completion external unless one is named\n"
+    "(oracle and perturbed read the gap frames). A second run with the same settings skips every finished stage;\n"
+    "--completion external stops after writing the completion request (exit status 3) until the completed frames\n"
+    "are in place. Every run writes OUT/settings.toml, which --config replays.";
 
 struct Inputs {
   std::string colmap, video, images, transforms, npy_ext, npy_int, npy_size, camera_model = "SIMPLE_PINHOLE";
@@ -101,55 +93,90 @@ void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames
             "default for this input) or none, or give --reference DIR (a model of every frame, for scoring)");
 }
 
+// Everything the command line sets.
+struct Args {
+  Inputs in;
+  cli::PipelineFlags flags;
+  std::string out;
+};
+
+std::unique_ptr<CLI::App> define(Args& a) {
+  auto app = std::make_unique<CLI::App>(kDescription, "full_pipeline");
+  cli::setup(*app, /*with_config=*/true);
+  Inputs& in = a.in;
+  const char* input = cli::kInputGroup;
+  app->add_option("--video", in.video,
+                  "a video ffmpeg reads; frames -> OUT/cameras/images, cameras of the source frames only by COLMAP "
+                  "(needs the ffmpeg and colmap programs)")
+      ->group(input);
+  app->add_option("--images", in.images,
+                  "a folder of frames; alone: cameras of the source frames by COLMAP; with --transforms or "
+                  "--npy-*: the frames those cameras belong to")
+      ->group(input);
+  app->add_option("--colmap", in.colmap, "a COLMAP dataset (images/ + sparse/0) with cameras already estimated")
+      ->group(input);
+  app->add_option("--transforms", in.transforms, "cameras from transforms.json (frames: its file_paths, or --images)")
+      ->group(input);
+  app->add_option("--npy-extrinsics", in.npy_ext, "VGGT-style arrays: camera i for the i-th image of --images")
+      ->group(input);
+  app->add_option("--npy-intrinsics", in.npy_int, "see --npy-extrinsics")->group(input);
+  app->add_option("--npy-size", in.npy_size, "WxH, the size the estimator saw (default: the frames')")
+      ->check(CLI::Validator(
+          [](std::string& s) -> std::string {
+            int w = 0, h = 0;
+            char end = 0;
+            if (std::sscanf(s.c_str(), "%dx%d%c", &w, &h, &end) != 2 || w <= 0 || h <= 0)
+              return "expects WxH, got '" + s + "'";
+            return {};
+          },
+          "WxH"))
+      ->group(input);
+  cli::unset_when_zero(app->add_option("--fps", in.fps, "--video: resample to R frames per second (default: every frame)"),
+                       in.fps)
+      ->check(cli::positive())
+      ->group(input);
+  app->add_option("--camera-model", in.camera_model,
+                  "COLMAP's one camera with --video or --images alone (default SIMPLE_PINHOLE)")
+      ->check(CLI::IsMember({"SIMPLE_PINHOLE", "PINHOLE"}))
+      ->group(input);
+  app->add_option("--reference", in.reference,
+                  "with --video / --images: a COLMAP folder of the same video estimated from every frame, used only "
+                  "to score the run (and by the oracle)")
+      ->group(input);
+  cli::add_pipeline_flags(*app, a.flags);
+  app->add_option("--prompt", a.flags.params.prompt, "the scene's description for the completion request")
+      ->group("Pipeline");
+  app->add_option("--out", a.out, "output folder (required with a recorded input; default out/pipeline)");
+  return app;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string out;
-  Inputs in;
-  cli::PipelineFlags flags;
-  bool frames_set = false, completion_set = false;
+  Args args;
+  Inputs& in = args.in;
+  cli::PipelineFlags& flags = args.flags;
+  std::string& out = args.out;
+  std::unique_ptr<CLI::App> app;
   try {
-    cli::begin_pipeline_flags("full_pipeline", argc, argv, flags);
-    cli::ArgWalker a("full_pipeline", argc, argv);
-    while (a.next()) {
-      const std::string f = a.flag();
-      if (f == "--frames") frames_set = true;
-      if (f == "--completion") completion_set = true;
-      if (cli::parse_pipeline_flag("full_pipeline", a, flags)) continue;
-      if (f == "--colmap") in.colmap = a.value();
-      else if (f == "--video") in.video = a.value();
-      else if (f == "--images") in.images = a.value();
-      else if (f == "--transforms") in.transforms = a.value();
-      else if (f == "--npy-extrinsics") in.npy_ext = a.value();
-      else if (f == "--npy-intrinsics") in.npy_int = a.value();
-      else if (f == "--npy-size") in.npy_size = a.value();
-      else if (f == "--reference") in.reference = a.value();
-      else if (f == "--fps") {
-        in.fps = cli::parse_double("full_pipeline", f, a.value());
-        if (in.fps <= 0) throw cli::UsageError("full_pipeline: --fps must be positive");
-      } else if (f == "--camera-model") {
-        in.camera_model = a.value();
-        in.camera_model_set = true;
-      }
-      else if (f == "--prompt") flags.params.prompt = a.value();
-      else if (f == "--out") out = a.value();
-      else if (f == "-h" || f == "--help") {
-        std::cout << kUsage;
-        return 0;
-      } else
-        a.unknown();
-    }
-    cli::end_pipeline_flags(flags);
+    app = cli::parse_with_protocol(
+        args, argc, argv, define, [](const Args& a) { return a.flags.protocol; },
+        [](Args& a, Protocol p) { cli::begin_pipeline_flags(a.flags, p); });
+    cli::end_pipeline_flags(*app, flags);
+    const bool frames_set = app->count("--frames") > 0, completion_set = app->count("--completion") > 0;
+    in.camera_model_set = app->count("--camera-model") > 0;
     check_inputs(in, flags, frames_set, completion_set);
     // A recorded input is a real run unless a completion is named: the oracle
     // and the perturbed provider read frames the method would not have.
     if (in.recorded() && !completion_set) flags.params.completion = "external";
     if (in.recorded() && out.empty()) throw cli::UsageError("full_pipeline: --out DIR is required with a recorded input");
+  } catch (const cli::HelpShown&) {
+    return 0;
   } catch (const cli::UsageError& e) {
-    std::cerr << e.what() << "\n" << kUsage;
+    std::cerr << e.what() << "\n";
     return 2;
   } catch (const Error& e) {
-    std::cerr << "full_pipeline: " << e.what() << "\n" << kUsage;
+    std::cerr << "full_pipeline: " << e.what() << "\n";
     return 2;
   }
 
@@ -169,25 +196,32 @@ int main(int argc, char** argv) {
         return 1;
       }
   }
+  if (!in.recorded()) {
+    // The embedded synthetic input, with the defaults of a run without arguments:
+    // small enough to finish in a few minutes on 2 cores.
+    if (out.empty()) out = "out/pipeline";
+    if (argc == 1) {
+      p.iters_g0 = p.iters_g1 = 1000;
+      p.orbit.views = 121;
+      p.init_points = 5000;
+      p.median_samples = 64;
+    }
+    if (p.prompt.empty()) p.prompt = "a striped capsule on a checkered floor";
+    cli::leave_out(*app, "--frames");  // it reads no video frames
+  }
+  if (!in.estimate_cameras()) cli::leave_out(*app, "--camera-model");  // COLMAP does not run
   try {
+    // Before any work: the settings as this run resolved them, and its command line.
+    p.invocation = cli::record_invocation(*app, argc, argv, out);
     PipelineInput<S> input;
     PipelineRun<S> run;
     const auto size = cli::working_size(flags);
     if (!in.recorded()) {
-      // The embedded default: small enough to finish in a few minutes on 2 cores.
       SyntheticInputParams sp;
       sp.width = flags.width > 0 ? flags.width : 96;
       sp.height = flags.height > 0 ? flags.height : 96;
       sp.focal = 160.0 * sp.height / 128.0;
-      if (out.empty()) out = "out/pipeline";
-      if (argc == 1) {
-        p.iters_g0 = p.iters_g1 = 1000;
-        p.orbit.views = 121;
-        p.init_points = 5000;
-        p.median_samples = 64;
-      }
       input = synthetic_pipeline_input<S>(sp, p.threads);
-      if (p.prompt.empty()) p.prompt = "a striped capsule on a checkered floor";
       withhold_every(input, flags.holdout_every);
       BackgroundEstimate bg = choose_background(input, flags.background ? &*flags.background : nullptr);
       if (flags.random_background) force_random_background(input, bg);
@@ -204,8 +238,7 @@ int main(int argc, char** argv) {
         input = load_transforms_input<S>(in.transforms, in.images, flags.frames, size);
       } else {
         int nw = 0, nh = 0;
-        if (!in.npy_size.empty() && (std::sscanf(in.npy_size.c_str(), "%dx%d", &nw, &nh) != 2 || nw <= 0 || nh <= 0))
-          throw cli::UsageError("full_pipeline: --npy-size expects WxH, got '" + in.npy_size + "'");
+        if (!in.npy_size.empty()) std::sscanf(in.npy_size.c_str(), "%dx%d", &nw, &nh);  // checked by --npy-size
         input = load_npy_input<S>(in.npy_ext, in.npy_int, in.images, nw, nh, flags.frames, size);
       }
       cli::finish_recorded_input("full_pipeline", input, flags);
@@ -217,9 +250,6 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "full_pipeline: done; report in %s/report.md, scene in %s/final.ply (and final.spz)\n",
                  out.c_str(), out.c_str());
     return 0;
-  } catch (const cli::UsageError& e) {
-    std::cerr << e.what() << "\n" << kUsage;
-    return 2;
   } catch (const PipelineStopped& e) {
     std::cerr << "full_pipeline: stopped: " << e.what() << "\n";
     return 3;

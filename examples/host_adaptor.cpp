@@ -3,13 +3,16 @@
 // quaternions x, y, z, w) without copying them, and have the backward pass write
 // gradients straight into the host's arrays in that parametrisation. The
 // contracts: splat/scene_adaptor.hpp (reading) and splat/scene_grad_view.hpp
-// (writing).
+// (writing). Besides the library it needs only CLI11 (header-only), for its
+// command line.
 //
 //   host_adaptor OUT.png
 #include <cmath>
 #include <cstdio>
 #include <string>
 #include <vector>
+
+#include <CLI/CLI.hpp>
 
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/splat/renderer.hpp"
@@ -40,12 +43,17 @@ struct SplatAdaptor {
 
 int main(int argc, char** argv) {
   using namespace orbitforge;
-  if (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
-    std::printf("usage: host_adaptor OUT.png\n");
+  std::string out_png;
+  CLI::App app("host_adaptor: render Gaussians kept in a host program's own storage, and write gradients back into it.",
+               "host_adaptor");
+  app.add_option("OUT.png", out_png, "the rendered image")->required();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp&) {
+    std::printf("%s", app.help().c_str());
     return 0;
-  }
-  if (argc != 2) {
-    std::fprintf(stderr, "usage: host_adaptor OUT.png\n");
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "host_adaptor: %s\n", e.what());
     return 2;
   }
   std::vector<HostSplat> splats;
@@ -59,7 +67,7 @@ int main(int argc, char** argv) {
 
   Renderer<double> renderer;
   const SplatAdaptor view{splats};
-  write_png(argv[1], renderer.render(view, cam).color);
+  write_png(out_png, renderer.render(view, cam).color);
 
   // d(mean brightness)/d(parameters), written into the host's gradient structs:
   // d/d sigma, d/d opacity, quaternion x, y, z, w.

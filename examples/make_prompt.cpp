@@ -4,39 +4,29 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "cli.hpp"
 #include "orbitforge/pipeline/completion/prompt.hpp"
 
 int main(int argc, char** argv) {
-  std::string subject, proposal;
-  bool json = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--enriched" && i + 1 < argc) {
-      proposal = argv[++i];
-    } else if (a == "--json") {
-      json = true;
-    } else if (a == "-h" || a == "--help") {
-      std::cout << "usage: make_prompt TEXT [--enriched PROPOSAL] [--json]\n";
-      return 0;
-    } else if (subject.empty() && a.rfind("--", 0) != 0) {
-      subject = a;
+  using namespace orbitforge;
+  return cli::run([&] {
+    std::string subject, proposal;
+    bool json = false;
+    CLI::App app("make_prompt: the source-video prompt of the paper's prompt protocol.", "make_prompt");
+    cli::setup(app);
+    app.add_option("TEXT", subject, "the subject, e.g. \"A pair of polka-dotted sneakers\"")->required();
+    app.add_option("--enriched", proposal, "a text enricher's proposal");
+    app.add_flag("--json", json, "print the original, enriched and video prompts and the enrichment as JSON");
+    cli::parse(app, argc, argv);
+    const auto r = make_prompt(subject, proposal);
+    if (json) {
+      std::cout << nlohmann::json{{"original", r.original}, {"enriched", r.enriched},
+                                  {"video_prompt", r.video_prompt}, {"enrichment", r.enrichment}}
+                       .dump(2)
+                << "\n";
     } else {
-      std::cerr << "make_prompt: unexpected argument '" << a << "'\n";
-      return 2;
+      std::cout << r.video_prompt << "\n";
     }
-  }
-  if (subject.empty()) {
-    std::cerr << "usage: make_prompt TEXT [--enriched PROPOSAL] [--json]\n";
-    return 2;
-  }
-  const auto r = orbitforge::make_prompt(subject, proposal);
-  if (json) {
-    std::cout << nlohmann::json{{"original", r.original}, {"enriched", r.enriched},
-                                {"video_prompt", r.video_prompt}, {"enrichment", r.enrichment}}
-                     .dump(2)
-              << "\n";
-  } else {
-    std::cout << r.video_prompt << "\n";
-  }
-  return 0;
+    return 0;
+  });
 }

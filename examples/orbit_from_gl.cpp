@@ -1,6 +1,7 @@
 // orbit_from_gl: the canonical 360-degree orbit from a host's own camera
 // matrices, OpenGL camera-to-world (x right, y up, looking along -z), as a
-// three.js, Blender or nerfstudio tool keeps them. Needs only orbitforge::core.
+// three.js, Blender or nerfstudio tool keeps them. Needs only orbitforge::core
+// (and CLI11, header-only, for its command line).
 //
 //   orbit_from_gl [POSES.txt WIDTH HEIGHT FOV_Y_DEG]
 //
@@ -15,6 +16,8 @@
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <CLI/CLI.hpp>
 
 #include "orbitforge/geometry/orbit.hpp"
 
@@ -52,19 +55,35 @@ std::vector<Eigen::Matrix4d> read_poses(const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const char* usage = "usage: orbit_from_gl [POSES.txt WIDTH HEIGHT FOV_Y_DEG]\n";
-  if (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
-    std::printf("%s", usage);
+  std::string poses_file;
+  int width = 512, height = 512;
+  double fov_y_deg = 50;
+  CLI::App app(
+      "orbit_from_gl: the canonical 360-degree orbit from OpenGL camera-to-world matrices (x right, y up, looking\n"
+      "along -z). POSES.txt: one camera per line, the 16 numbers of its 4x4 matrix in row-major order; without\n"
+      "arguments a 120-degree arc of 33 cameras around the origin.",
+      "orbit_from_gl");
+  app.option_defaults()->always_capture_default();
+  app.add_option("POSES.txt", poses_file, "the cameras, one 4x4 camera-to-world matrix a line");
+  app.add_option("WIDTH", width, "image width")->check(CLI::Range(1, 1 << 20));
+  app.add_option("HEIGHT", height, "image height")->check(CLI::Range(1, 1 << 20));
+  app.add_option("FOV_Y_DEG", fov_y_deg, "vertical field of view in degrees")->check(CLI::Range(0.001, 179.999));
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp&) {
+    std::printf("%s", app.help().c_str());
     return 0;
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "orbit_from_gl: %s\n", e.what());
+    return 2;
   }
   if (argc != 1 && argc != 5) {
-    std::fprintf(stderr, "%s", usage);
+    std::fprintf(stderr, "orbit_from_gl: give POSES.txt WIDTH HEIGHT FOV_Y_DEG, or nothing\n");
     return 2;
   }
   try {
-    const std::vector<Eigen::Matrix4d> gl = argc == 5 ? read_poses(argv[1]) : example_arc();
-    const int width = argc == 5 ? std::stoi(argv[2]) : 512, height = argc == 5 ? std::stoi(argv[3]) : 512;
-    const double fov_y = (argc == 5 ? std::stod(argv[4]) : 50) * M_PI / 180;
+    const std::vector<Eigen::Matrix4d> gl = poses_file.empty() ? example_arc() : read_poses(poses_file);
+    const double fov_y = fov_y_deg * M_PI / 180;
     const double f = 0.5 * height / std::tan(0.5 * fov_y);
     const Intrinsics<double> k{f, f, 0.5 * width, 0.5 * height, width, height};
 

@@ -1,16 +1,21 @@
 #pragma once
-// The flags full_pipeline and audit share, and the one way both load a recorded
-// input (a COLMAP folder): frames, working size, withheld frames, background.
+// The flags full_pipeline, audit and reconstruct share, defined once
+// (add_reconstruction_flags, add_pipeline_flags), and the one way the pipeline
+// programs load a recorded input (a COLMAP folder): frames, working size,
+// withheld frames, background.
 //
-// --protocol paper|measured is read first, wherever it stands: it sets every
-// value the paper fixes (pipeline/protocol.hpp), and the other flags given then
-// override single values of it.
+// --protocol paper|measured sets every value the paper fixes
+// (pipeline/protocol.hpp); the other flags, on the command line or in a --config
+// file, override single values of it wherever they stand (parse_with_protocol).
 #include <array>
 #include <cstdio>
+#include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include "cli.hpp"
+#include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/pipeline/completion/providers.hpp"
 #include "orbitforge/pipeline/inputs/colmap_input.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
@@ -21,41 +26,14 @@
 
 namespace orbitforge::cli {
 
-inline const char* kPipelineFlagsUsage =
-    "  --protocol measured|paper   the library's measured defaults (default) or the method as published\n"
-    "  --frames A-B                source video frames (1-based, default 1-33)\n"
-    "  --width W --height H        working size of the frames (default 512 on the longer side,\n"
-    "                              aspect kept; paper: the frames' own)\n"
-    "  --holdout-every K           withhold every K-th source frame from every reconstruction (0 = none)\n"
-    "  --completion oracle|perturbed|perturbed-geometric|external|none\n"
-    "  --iters N --iters-g1 N      iterations of G0 and G1\n"
-    "  --views N --render-stride K --median-samples N --static --threads N --seed S --background r,g,b|random\n"
-    "  --g1-data source|paper --g1-arc-renders --g1-deformable --g1-static --g1-random-init\n"
-    "  --g1-source-repeats N --g1-completion-repeats N\n"
-    "  --compare-g1-paper --oracle-bound --no-comparisons --quiet\n"
-    "  --static-diagnostics        also render the static-proxy comparison (not part of the method; off by default)\n"
-    "  --checkpoint-every N        partial training checkpoints every N iterations (default 500, 0 = none)\n"
-    "Work a scene does not need (off by default; each reconstruction):\n"
-    "  --still-check N [--still-gain DB]   N iterations after the warm-up, bake the field in and train static\n"
-    "                              when it fits the frames less than DB better than its bake (default 1.0)\n"
-    "  --plateau-window N [--plateau-tolerance X]   stop when the mean loss over N iterations (whole passes)\n"
-    "                              improves by less than X (relative; default 0.002) after densification\n"
-    "  --max-gaussians N           Gaussian budget of densification\n"
-    "  --coarse-levels L [--coarse-fraction F]   the first F of training (default 0.5) on frames\n"
-    "                              downsampled by up to 2^L\n"
-    "Cameras estimated from the source frames (--video, --images; audit --cameras estimated):\n"
-    "  --focal PX | --fov DEG      the video model's lens (pixels of the frames' own size, or the\n"
-    "                              horizontal field of view), held fixed while mapping\n"
-    "  --focal-search              also map at 0.8, 0.9, 1.1 and 1.25 times the mapper's own focal\n"
-    "                              estimate and keep the cameras that fit an orbit best (default: keep it)\n";
-
 struct PipelineFlags {
   Protocol protocol = Protocol::measured;
   PipelineParams params;
   std::string frames = "1-33";
   int width = 0, height = 0;  // 0 = the protocol's choice
   int holdout_every = 0;
-  bool iters_g1_set = false;
+  std::string background_text;  // --background as given; empty: estimated from the frames
+  // Resolved by end_pipeline_flags from background_text.
   std::optional<std::array<double, 3>> background;
   bool random_background = false;  // --background random
   // Cameras estimated from the source frames (COLMAP): the lens when known, and
@@ -64,105 +42,207 @@ struct PipelineFlags {
   bool focal_search = false;
 };
 
-// The --protocol value anywhere on the command line (measured when absent).
-inline Protocol scan_protocol(const std::string& program, int argc, char** argv) {
-  Protocol p = Protocol::measured;
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) != "--protocol") continue;
-    if (i + 1 >= argc) throw UsageError(program + ": --protocol needs a value (paper or measured)");
-    try {
-      p = parse_protocol(argv[i + 1]);
-    } catch (const Error& e) {
-      throw UsageError(program + ": --protocol: " + e.what());
-    }
-  }
-  return p;
-}
+inline const char* kInputGroup = "Input";
+inline const char* kTrainingGroup = "Training";
+inline const char* kSkipGroup = "Work a scene does not need (off by default; each reconstruction)";
 
-// Starts `f` from the protocol named on the command line.
-inline void begin_pipeline_flags(const std::string& program, int argc, char** argv, PipelineFlags& f) {
-  f.protocol = scan_protocol(program, argc, argv);
-  apply_protocol(f.params, f.protocol);
-}
-
-// Consumes the walker's current flag when it is a shared one; false otherwise.
-inline bool parse_pipeline_flag(const std::string& program, ArgWalker& a, PipelineFlags& f) {
+// The flags of one reconstruction, which reconstruct and the pipeline share. Each
+// option's default is the value `f` holds when it is added (a program sets its
+// own first, e.g. reconstruct's 30000 iterations).
+inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
   PipelineParams& p = f.params;
-  const std::string flag = a.flag();
-  auto integer = [&](long lo) { return int(parse_int(program, flag, a.value(), lo)); };
-  if (flag == "--protocol") a.value();  // read by begin_pipeline_flags
-  else if (flag == "--frames") {
-    f.frames = a.value();
-    try {
-      parse_frame_range(f.frames);
-    } catch (const Error& e) {
-      throw UsageError(program + ": --frames: " + e.what());
-    }
-  } else if (flag == "--width") f.width = integer(8);
-  else if (flag == "--height") f.height = integer(8);
-  else if (flag == "--holdout-every") f.holdout_every = integer(0);
-  else if (flag == "--completion") {
-    p.completion = a.value();
-    if (p.completion != "external" && p.completion != "oracle" && p.completion != "none" &&
-        p.completion != "perturbed" && p.completion != "perturbed-geometric")
-      throw UsageError(program + ": --completion must be " + completion_provider_names() + ", got '" +
-                       p.completion + "'");
-  } else if (flag == "--iters") p.iters_g0 = integer(1);
-  else if (flag == "--iters-g1") {
-    p.iters_g1 = integer(1);
-    f.iters_g1_set = true;
-  } else if (flag == "--views") p.orbit.views = int(parse_int(program, flag, a.value(), 9, kMaxOrbitViews));
-  else if (flag == "--render-stride") p.render_stride = integer(1);
-  else if (flag == "--median-samples") p.median_samples = integer(2);
-  else if (flag == "--threads") p.threads = parse_threads(program, flag, a.value());
-  else if (flag == "--seed") p.seed = unsigned(integer(0));
-  else if (flag == "--static") p.deformable = false;
-  else if (flag == "--background") {
-    const std::string v = a.value();
-    f.random_background = v == "random";
-    if (!f.random_background) f.background = parse_rgb(program, flag, v);
+  app.add_option_function<std::string>(
+         "--protocol", [&f](const std::string& s) { f.protocol = parse_protocol(s); },
+         "measured: the library's measured defaults; paper: the method as published (its values first, "
+         "then the other flags given)")
+      ->default_function([&f] { return std::string(protocol_name(f.protocol)); })
+      ->capture_default_str()
+      ->check(checked_by([](const std::string& s) { parse_protocol(s); }, "measured|paper"))
+      ->group(kTrainingGroup);
+  app.add_option("--frames", f.frames, "source video frames A-B (1-based, in name order; \"A-\": to the last)")
+      ->check(frame_range())
+      ->group(kInputGroup);
+  unset_when_zero(app.add_option("--width", f.width,
+                                 "working size of the frames (one of --width/--height alone: square; default 512 on "
+                                 "the longer side, aspect kept; paper: the frames' own)"),
+                  f.width)
+      ->transform(at_least(8))
+      ->group(kInputGroup);
+  unset_when_zero(app.add_option("--height", f.height, "see --width"), f.height)
+      ->transform(at_least(8))
+      ->group(kInputGroup);
+  app.add_option("--holdout-every", f.holdout_every,
+                 "withhold every K-th source frame from every reconstruction (0 = none)")
+      ->transform(at_least(0))
+      ->group(kInputGroup);
+  app.add_option("--background", f.background_text,
+                 "r,g,b in [0,1] or random (default: estimated from the frames' borders)")
+      ->check(rgb(true))
+      ->group(kInputGroup);
+  app.add_option("--iters", p.iters_g0, "training iterations (full_pipeline, audit: of G0, and of G1 unless --iters-g1)")
+      ->transform(at_least(1))
+      ->group(kTrainingGroup);
+  app.add_option("--median-samples", p.median_samples, "samples of the MedianGS bake (T_m)")
+      ->transform(at_least(2))
+      ->group(kTrainingGroup);
+  app.add_option("--threads", p.threads, "worker threads (0 = all hardware threads)")
+      ->transform(thread_count())
+      ->group(kTrainingGroup);
+  app.add_option("--seed", p.seed, "random seed")->transform(at_least(0))->group(kTrainingGroup);
+  app.add_option("--still-check", p.train.still_check_iterations,
+                 "N iterations after the warm-up, bake the field in and train static when it fits the frames less "
+                 "than --still-gain dB better than its bake (0 = off)")
+      ->transform(at_least(0))
+      ->group(kSkipGroup);
+  app.add_option("--still-gain", p.train.still_gain_db, "see --still-check (dB)")->check(finite())->group(kSkipGroup);
+  app.add_option("--plateau-window", p.train.plateau_window,
+                 "stop when the mean loss over N iterations (whole passes) improves by less than "
+                 "--plateau-tolerance after densification (0 = off)")
+      ->transform(at_least(0))
+      ->group(kSkipGroup);
+  app.add_option("--plateau-tolerance", p.train.plateau_tolerance, "see --plateau-window (relative)")
+      ->check(finite())
+      ->group(kSkipGroup);
+  app.add_option("--max-gaussians", p.train.densify_params.max_gaussians,
+                 "Gaussian budget of densification (0 = none)")
+      ->transform(at_least(0))
+      ->group(kSkipGroup);
+  app.add_option("--coarse-levels", p.train.coarse_levels,
+                 "the first --coarse-fraction of training on frames downsampled by up to 2^L (0 = off)")
+      ->transform(at_least(0))
+      ->group(kSkipGroup);
+  app.add_option("--coarse-fraction", p.train.coarse_fraction, "see --coarse-levels")
+      ->check(finite())
+      ->group(kSkipGroup);
+}
+
+// The pipeline's flags (full_pipeline and audit): one reconstruction's, and the
+// method's own.
+inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
+  add_reconstruction_flags(app, f);
+  PipelineParams& p = f.params;
+  const char* method = "Pipeline";
+  app.add_option("--completion", p.completion, std::string("the completion provider: ") + completion_provider_names())
+      ->check(CLI::IsMember({"external", "oracle", "perturbed", "perturbed-geometric", "none"}))
+      ->group(method);
+  app.add_option("--iters-g1", p.iters_g1, "iterations of G1 (default: --iters)")
+      ->transform(at_least(1))
+      ->group(method);
+  app.add_option("--views", p.orbit.views, "views of the canonical orbit")
+      ->transform(at_least(9))
+      ->check(CLI::Range(9, kMaxOrbitViews))
+      ->group(method);
+  app.add_option("--render-stride", p.render_stride, "render R0 / R1 at every K-th canonical view")
+      ->transform(at_least(1))
+      ->group(method);
+  add_setting_flag(app, "--static", p.deformable, false, "G0 static (default: deformable)")->group(method);
+  app.add_option_function<std::string>(
+         "--g1-data", [&p](const std::string& s) { p.g1_data = parse_g1_data(s); },
+         "what G1 trains on: source (the source frames and the completion) or paper (V_hat as published)")
+      ->default_function([&p] { return std::string(g1_data_name(p.g1_data)); })
+      ->capture_default_str()
+      ->check(checked_by([](const std::string& s) { parse_g1_data(s); }, "source|paper"))
+      ->group(method);
+  add_setting_flag(app, "--g1-arc-renders", p.g1_arc_renders, true, "with --g1-data source: add R0's arc renders")
+      ->group(method);
+  add_setting_flag(app, "--g1-deformable", p.g1_deformable, true, "G1 (and the bound) deformable")->group(method);
+  add_setting_flag(app, "--g1-static", p.g1_deformable, false, "G1 (and the bound) static (the default)")
+      ->group(method);
+  add_setting_flag(app, "--g1-random-init", p.g1_from_gmed0, false, "G1 from points / random, not from Gmed0")
+      ->group(method);
+  app.add_option("--g1-source-repeats", p.g1_source_repeats, "sampling weight of G1's source frames")
+      ->transform(at_least(1))
+      ->group(method);
+  app.add_option("--g1-completion-repeats", p.g1_completion_repeats, "sampling weight of G1's completion frames")
+      ->transform(at_least(1))
+      ->group(method);
+  // Defined before the two it clears, so that either one given with it still runs.
+  app.add_flag_callback("--no-comparisons", [&p] { p.compare_g1_paper = p.oracle_bound = false; },
+                        "neither comparison (--compare-g1-paper or --oracle-bound given too still adds that one)")
+      ->default_function([] { return std::string("false"); })
+      ->group(method);
+  add_setting_flag(app, "--compare-g1-paper", p.compare_g1_paper, true,
+                   "also train G1 on the paper's V_hat (a comparison, not the method)")
+      ->group(method);
+  add_setting_flag(app, "--oracle-bound", p.oracle_bound, true,
+                   "also train the oracle bound (a comparison; recorded inputs only)")
+      ->group(method);
+  add_setting_flag(app, "--quiet", p.progress, false, "no progress lines")->group(method);
+  // --no-static-diagnostics is the default; kept for old commands. Defined first
+  // so that --static-diagnostics given with it wins.
+  app.add_flag_callback("--no-static-diagnostics", [&p] { p.static_proxy_diagnostics = false; },
+                        "(the default; kept for old commands)")
+      ->default_function([] { return std::string("false"); })
+      ->group(method);
+  add_setting_flag(app, "--static-diagnostics", p.static_proxy_diagnostics, true,
+                   "also render the static-proxy comparison (not part of the method)")
+      ->group(method);
+  app.add_option("--checkpoint-every", p.checkpoint_every, "partial training checkpoints every N iterations (0 = none)")
+      ->transform(at_least(0))
+      ->group(method);
+  const char* cameras = "Cameras estimated from the source frames (--video, --images; audit --cameras estimated)";
+  unset_when_zero(app.add_option("--focal", f.focal_px,
+                                 "the video model's lens in pixels of the frames' own size, held fixed while mapping"),
+                  f.focal_px)
+      ->check(positive())
+      ->group(cameras);
+  unset_when_zero(app.add_option("--fov", f.fov_deg,
+                                 "the lens as the horizontal field of view in degrees (0, 180), instead of --focal"),
+                  f.fov_deg)
+      ->check(positive() & CLI::Range(0.0, 179.999999))
+      ->group(cameras);
+  add_setting_flag(app, "--focal-search", f.focal_search, true,
+                   "also map at 0.8, 0.9, 1.1 and 1.25 times the mapper's own focal estimate and keep the cameras "
+                   "that fit an orbit best (default: keep it)")
+      ->group(cameras);
+}
+
+// Parses argv with the options `define(f)` returns an App for. The protocol sets
+// defaults that the other flags override wherever they stand (the command line, a
+// --config file): a first parse finds it, `begin(f, protocol)` starts `f` from its
+// defaults, and a second parse reads every flag over them. Returns the App of the
+// second parse (bound to `f`; it writes the settings file).
+template <class Flags, class Define, class Protocol_of, class Begin>
+std::unique_ptr<CLI::App> parse_with_protocol(Flags& f, int argc, char** argv, Define define, Protocol_of protocol_of,
+                                              Begin begin) {
+  {
+    Flags first = f;
+    const std::unique_ptr<CLI::App> app = define(first);
+    parse(*app, argc, argv);
+    begin(f, protocol_of(first));
   }
-  else if (flag == "--g1-data") {
-    try {
-      p.g1_data = parse_g1_data(a.value());
-    } catch (const Error& e) {
-      throw UsageError(program + ": --g1-data: " + e.what());
-    }
-  } else if (flag == "--g1-arc-renders") p.g1_arc_renders = true;
-  else if (flag == "--g1-deformable") p.g1_deformable = true;
-  else if (flag == "--g1-static") p.g1_deformable = false;
-  else if (flag == "--g1-random-init") p.g1_from_gmed0 = false;
-  else if (flag == "--g1-source-repeats") p.g1_source_repeats = integer(1);
-  else if (flag == "--g1-completion-repeats") p.g1_completion_repeats = integer(1);
-  else if (flag == "--compare-g1-paper") p.compare_g1_paper = true;
-  else if (flag == "--oracle-bound") p.oracle_bound = true;
-  else if (flag == "--no-comparisons") p.compare_g1_paper = p.oracle_bound = false;
-  else if (flag == "--quiet") p.progress = false;
-  else if (flag == "--static-diagnostics") p.static_proxy_diagnostics = true;
-  else if (flag == "--no-static-diagnostics") p.static_proxy_diagnostics = false;  // the default; kept for old commands
-  else if (flag == "--checkpoint-every") p.checkpoint_every = integer(0);
-  else if (flag == "--still-check") p.train.still_check_iterations = integer(0);
-  else if (flag == "--still-gain") p.train.still_gain_db = parse_double(program, flag, a.value());
-  else if (flag == "--plateau-window") p.train.plateau_window = integer(0);
-  else if (flag == "--plateau-tolerance") p.train.plateau_tolerance = parse_double(program, flag, a.value());
-  else if (flag == "--max-gaussians") p.train.densify_params.max_gaussians = std::size_t(integer(0));
-  else if (flag == "--coarse-levels") p.train.coarse_levels = integer(0);
-  else if (flag == "--coarse-fraction") p.train.coarse_fraction = parse_double(program, flag, a.value());
-  else if (flag == "--focal") {
-    f.focal_px = parse_double(program, flag, a.value());
-    if (!(f.focal_px > 0)) throw UsageError(program + ": --focal must be a positive number of pixels");
-  } else if (flag == "--fov") {
-    f.fov_deg = parse_double(program, flag, a.value());
-    if (!(f.fov_deg > 0 && f.fov_deg < 180)) throw UsageError(program + ": --fov must lie in (0, 180) degrees");
-  } else if (flag == "--focal-search") f.focal_search = true;
-  else return false;
-  return true;
+  std::unique_ptr<CLI::App> app = define(f);
+  parse(*app, argc, argv);
+  return app;
+}
+
+// The pipeline's protocol, as parse_with_protocol's `begin`.
+inline void begin_pipeline_flags(PipelineFlags& f, Protocol protocol) {
+  f.protocol = protocol;
+  apply_protocol(f.params, protocol);
 }
 
 // After parsing: values that follow from others.
-inline void end_pipeline_flags(PipelineFlags& f) {
-  if (!f.iters_g1_set) f.params.iters_g1 = f.params.iters_g0;
-  if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError("give --focal or --fov, not both");
+inline void end_pipeline_flags(const CLI::App& app, PipelineFlags& f) {
+  recheck(app.get_name(), "--frames", f.frames, frame_range());
+  const CLI::Option* iters_g1 = app.get_option_no_throw("--iters-g1");  // reconstruct has none
+  if (!iters_g1 || iters_g1->count() == 0) f.params.iters_g1 = f.params.iters_g0;
+  f.random_background = f.background_text == "random";
+  f.background.reset();
+  if (!f.background_text.empty() && !f.random_background) f.background = parse_rgb(f.background_text);
+  if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError(app.get_name() + ": give --focal or --fov, not both");
+}
+
+// Writes OUT/settings.toml, the run's resolved settings (settings_text), which
+// `--config OUT/settings.toml` replays, and returns the record report.json keeps
+// of the run: the command line and those settings.
+inline RunInvocation record_invocation(CLI::App& app, int argc, char** argv, const std::string& out) {
+  RunInvocation inv;
+  inv.command = shell_command(argc, argv);
+  inv.settings = settings_text(app);
+  std::filesystem::create_directories(out);
+  write_file_atomic((std::filesystem::path(out) / "settings.toml").string(), inv.settings);
+  return inv;
 }
 
 // The working size a recorded input is loaded at: the flags' (one of --width /

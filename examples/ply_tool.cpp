@@ -17,8 +17,9 @@
 //                                      or cameras FIRST..LAST of it, and how many no
 //                                      camera keeps, as one JSON object
 // Bad usage exits 2 with a message naming the command or argument; bad input 1.
-#include <cctype>
+// `ply_tool COMMAND --help` describes one command.
 #include <cmath>
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
 #include <limits>
@@ -160,54 +161,69 @@ int visible(const std::string& path, const std::string& cameras_path, std::size_
   return 0;
 }
 
-const char* const usage_text =
-    "usage: ply_tool info FILE\n"
-    "       ply_tool convert IN OUT        (.ply, .splat, .spz by extension)\n"
-    "       ply_tool dump FILE [FIRST [COUNT]]\n"
-    "       ply_tool random N DEGREE SEED OUT\n"
-    "       ply_tool visible FILE CAMERAS.json [FIRST LAST]\n"
-    "       ply_tool --help\n";
-
-// Bad usage: the message names what was wrong, then the usage (exit 2).
-int usage_error(const std::string& what) {
-  std::cerr << "ply_tool: " << what << "\n" << usage_text;
-  return 2;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    if (argc == 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
-      std::cout << usage_text;
+  return cli::run([&] {
+    CLI::App app(
+        "ply_tool: inspect and convert Gaussian splat files (.ply in the INRIA 3DGS layout, antimatter15 .splat,\n"
+        "Niantic .spz). Bad usage exits 2 with a message naming the command or argument; bad input 1.",
+        "ply_tool");
+    cli::setup(app);
+    app.require_subcommand(1);
+    std::string file, out;
+    std::size_t first = 0, count = std::numeric_limits<std::size_t>::max(), n = 0;
+    std::size_t last = std::numeric_limits<std::size_t>::max();
+    int degree = 0;
+    unsigned seed = 0;
+
+    CLI::App* info_cmd = app.add_subcommand(
+        "info", "count, SH degree and per-attribute statistics (min / max / mean, count of non-finite values) as one "
+                "JSON object");
+    info_cmd->add_option("FILE", file, "a .ply, .splat or .spz file")->required();
+
+    CLI::App* convert_cmd = app.add_subcommand(
+        "convert", "converts IN to OUT by extension between .ply, .splat and .spz (.splat and .spz are lossy: see "
+                   "io/splat_format.hpp and io/spz.hpp)");
+    convert_cmd->add_option("IN", file, "the file to read")->required();
+    convert_cmd->add_option("OUT", out, "the file to write")->required();
+
+    CLI::App* dump_cmd = app.add_subcommand(
+        "dump", "prints Gaussians FIRST.. (COUNT of them) as JSON lines with the values as stored (PLY names, f_rest "
+                "channel-major)");
+    dump_cmd->add_option("FILE", file, "a .ply, .splat or .spz file")->required();
+    dump_cmd->add_option("FIRST", first, "the first Gaussian");
+    dump_cmd->add_option("COUNT", count, "how many (default: to the end)");
+
+    CLI::App* random_cmd = app.add_subcommand("random", "writes a random scene (for format checks)");
+    random_cmd->add_option("N", n, "Gaussians")->required();
+    random_cmd->add_option("DEGREE", degree, "SH degree")->required()->check(CLI::Range(0, 3));
+    random_cmd->add_option("SEED", seed, "random seed")->required();
+    random_cmd->add_option("OUT", out, "the file to write")->required();
+
+    CLI::App* visible_cmd = app.add_subcommand(
+        "visible", "how many Gaussians projection keeps in each camera of a camera file (orbit.json, a list), or "
+                   "cameras FIRST..LAST of it, and how many no camera keeps, as one JSON object");
+    visible_cmd->add_option("FILE", file, "a .ply, .splat or .spz file")->required();
+    std::string cameras;
+    visible_cmd->add_option("CAMERAS", cameras, "a camera file")->required();
+    CLI::Option* first_opt = visible_cmd->add_option("FIRST", first, "the first camera (0-based)");
+    CLI::Option* last_opt = visible_cmd->add_option("LAST", last, "the last camera");
+    first_opt->needs(last_opt);
+
+    // CLI11 alone would only say that a command is required: name the word it did not know.
+    const std::string word = argc > 1 ? argv[1] : "";
+    if (!word.empty() && word[0] != '-' && word != "info" && word != "convert" && word != "dump" &&
+        word != "random" && word != "visible")
+      throw cli::UsageError("ply_tool: unknown command '" + word + "' (info, convert, dump, random or visible)");
+    cli::parse(app, argc, argv);
+    if (info_cmd->parsed()) return info(file);
+    if (convert_cmd->parsed()) {
+      save(out, load(file));
       return 0;
     }
-    if (argc < 2) return usage_error("no command given");
-    const std::string cmd = argv[1];
-    if (!cmd.empty() && cmd[0] == '-') return usage_error("unknown option '" + cmd + "'");
-    for (int i = 2; i < argc; ++i)
-      if (argv[i][0] == '-' && argv[i][1] != '\0' && !std::isdigit(static_cast<unsigned char>(argv[i][1])))
-        return usage_error("unknown option '" + std::string(argv[i]) + "' for '" + cmd + "'");
-    if (cmd == "info" && argc == 3) return info(argv[2]);
-    if (cmd == "convert" && argc == 4) {
-      save(argv[3], load(argv[2]));
-      return 0;
-    }
-    if (cmd == "dump" && argc >= 3 && argc <= 5) {
-      const std::size_t first = argc >= 4 ? std::stoull(argv[3]) : 0;
-      const std::size_t count = argc >= 5 ? std::stoull(argv[4]) : std::numeric_limits<std::size_t>::max() - first;
-      return dump(argv[2], first, count);
-    }
-    if (cmd == "random" && argc == 6)
-      return random_scene(std::stoull(argv[2]), std::stoi(argv[3]), unsigned(std::stoul(argv[4])), argv[5]);
-    if (cmd == "visible" && (argc == 4 || argc == 6))
-      return visible(argv[2], argv[3], argc == 6 ? std::stoull(argv[4]) : 0,
-                     argc == 6 ? std::stoull(argv[5]) : std::numeric_limits<std::size_t>::max());
-    for (const char* known : {"info", "convert", "dump", "random", "visible"})
-      if (cmd == known) return usage_error("wrong number of arguments for '" + cmd + "' (" + std::to_string(argc - 2) + " given)");
-    return usage_error("unknown command '" + cmd + "'");
-  } catch (const std::exception& e) {
-    std::cerr << "ply_tool: " << cli::describe(e) << "\n";
-    return 1;
-  }
+    if (dump_cmd->parsed()) return dump(file, first, std::min(count, std::numeric_limits<std::size_t>::max() - first));
+    if (random_cmd->parsed()) return random_scene(n, degree, seed, out);
+    return visible(file, cameras, first, last);
+  });
 }

@@ -25,50 +25,45 @@ using namespace orbitforge;
 
 namespace {
 
-const char* kUsage =
-    "usage: render_orbit --ply scene.ply (--camera cam.json | --orbit orbit.json [--every K]) --out DIR\n"
-    "                    [--format png|pfm] [--background r,g,b] [--threads N] [--stats]\n"
-    "                    [--near-plane-fraction X]  near plane as a share of the scene's scale (default 0.002)\n";
+const char* kDescription =
+    "render_orbit: render a Gaussian Splatting scene on the CPU at given cameras.\n"
+    "  render_orbit --ply scene.ply (--camera cam.json | --orbit orbit.json [--every K]) --out DIR [flags]\n"
+    "Frames are written as DIR/00000.png (or .pfm) in camera order (with --every K the file name keeps the\n"
+    "camera's index).";
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc == 1 || (argc == 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help"))) {
-    std::cout << kUsage;
-    return argc == 1 ? 2 : 0;
-  }
   return cli::run([&] {
-    std::string ply, camera_file, orbit_file, out, format = "png";
+    std::string ply, camera_file, orbit_file, out, format = "png", background;
     int every = 1, threads = 0;
     bool stats = false;
     double near_fraction = TrainParams{}.near_plane_fraction;
     RenderParams<float> params;
-    cli::ArgWalker w("render_orbit", argc, argv);
-    while (w.next()) {
-      const std::string f = w.flag();
-      if (f == "--ply") ply = w.value();
-      else if (f == "--camera") camera_file = w.value();
-      else if (f == "--orbit") orbit_file = w.value();
-      else if (f == "--every") every = int(cli::parse_int("render_orbit", f, w.value(), 1));
-      else if (f == "--out") out = w.value();
-      else if (f == "--format") format = w.value();
-      else if (f == "--threads") threads = cli::parse_threads("render_orbit", f, w.value());
-      else if (f == "--stats") stats = true;
-      else if (f == "--near-plane-fraction") near_fraction = cli::parse_double("render_orbit", f, w.value());
-      else if (f == "--background") {
-        const auto c = cli::parse_rgb("render_orbit", f, w.value());
-        params.background = {float(c[0]), float(c[1]), float(c[2])};
-      } else {
-        w.unknown();
-      }
+    CLI::App app(kDescription, "render_orbit");
+    cli::setup(app);
+    app.add_option("--ply", ply, "the scene")->required();
+    app.add_option("--camera", camera_file,
+                   "one camera or a list {\"width\",\"height\",\"fx\",\"fy\",\"cx\",\"cy\",\"R\": 3x3,\"t\": 3}, "
+                   "x_cam = R x_world + t (OpenCV axes)");
+    app.add_option("--orbit", orbit_file, "an orbit file (what fit_orbit writes)");
+    app.add_option("--every", every, "every K-th camera")->transform(cli::at_least(1));
+    app.add_option("--out", out, "output folder")->required();
+    app.add_option("--format", format, "png or pfm")->check(CLI::IsMember({"png", "pfm"}));
+    app.add_option("--background", background, "r,g,b in [0,1] (default black)")->check(cli::rgb());
+    app.add_option("--threads", threads, "worker threads (0 = all hardware threads)")->transform(cli::thread_count());
+    app.add_flag("--stats", stats, "print one JSON line of render statistics per frame");
+    app.add_option("--near-plane-fraction", near_fraction, "near plane as a share of the scene's scale")
+        ->check(cli::finite());
+    cli::parse(app, argc, argv);
+    if (!background.empty()) {
+      const auto c = cli::parse_rgb(background);
+      params.background = {float(c[0]), float(c[1]), float(c[2])};
     }
     auto usage = [](bool ok, const char* message) {
       if (!ok) throw cli::UsageError(std::string("render_orbit: ") + message);
     };
-    usage(!ply.empty(), "--ply is required");
-    usage(!out.empty(), "--out DIR is required");
     usage(camera_file.empty() != orbit_file.empty(), "give exactly one of --camera and --orbit");
-    usage(format == "png" || format == "pfm", "--format must be png or pfm");
     usage(near_fraction > 0 && near_fraction < 1, "--near-plane-fraction must be in (0, 1)");
     params.threads = threads;
 

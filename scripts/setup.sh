@@ -3,7 +3,7 @@
 set -euo pipefail
 packages=(build-essential cmake ninja-build ccache pkg-config
   libeigen3-dev libxsimd-dev libstb-dev nlohmann-json3-dev zlib1g-dev
-  catch2 libbenchmark-dev python3-matplotlib clang libclang-rt-14-dev
+  libcli11-dev catch2 libbenchmark-dev python3-matplotlib clang libclang-rt-14-dev
   ffmpeg colmap)  # full_pipeline --video / --images and their tests run these two programs
 missing=()
 for p in "${packages[@]}"; do

@@ -336,7 +336,10 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   const auto before = read_file_bytes((dir / "report.json").string());
   const auto t_before = fs::last_write_time(dir / "final.ply");
   PipelineRun<float> state;
-  const auto r = run_pipeline(tiny_input_data(), oracle_params(), dir.string(), nullptr, &state);
+  // Spelled differently: the invocation is a record only, in no stage key.
+  PipelineParams again = oracle_params();
+  again.invocation = {"full_pipeline --config settings.toml", "iters = 60\n"};
+  const auto r = run_pipeline(tiny_input_data(), again, dir.string(), nullptr, &state);
   CHECK(state.ran.empty());
   CHECK(state.skipped.size() == 8);
   CHECK(read_file_bytes((dir / "report.json").string()) == before);
@@ -348,9 +351,15 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   copy_run(dir, copy);
   PipelineParams p = tiny_params();
   p.iters_g1 = kQuick ? 20 : 40;
+  p.invocation = {"full_pipeline --iters-g1 40 --out 'resume copy'", "iters-g1=40\n"};
   PipelineRun<float> s2;
-  run_pipeline(tiny_input_data(), p, copy.string(), nullptr, &s2);
+  const auto r2 = run_pipeline(tiny_input_data(), p, copy.string(), nullptr, &s2);
   CHECK(s2.ran == std::vector<std::string>{"g1", "report"});
+  // The report the run wrote records its invocation as given.
+  CHECK(r2.at("invocation").at("command") == p.invocation.command);
+  CHECK(r2.at("invocation").at("settings") == p.invocation.settings);
+  CHECK(parse_file(copy / "report.json").at("invocation") == r2.at("invocation"));
+  CHECK_FALSE(nlohmann::json::parse(before).contains("invocation"));  // none given: none recorded
   CHECK(s2.skipped == std::vector<std::string>{"orbit", "g0", "static_proxy", "completion"});
 }
 

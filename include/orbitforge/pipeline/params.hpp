@@ -35,6 +35,16 @@ inline G1Data parse_g1_data(const std::string& s) {
   fail("G1 data '", s, "': expected paper or source");
 }
 
+// How a run was asked for, kept for the record: run_pipeline copies it into
+// report.json ("invocation") and nothing else reads it. It enters no stage key, so
+// a resumed run spelled differently still skips its verified stages, and a
+// skipped report keeps the invocation of the run that wrote it.
+struct RunInvocation {
+  std::string command;   // the command line, e.g. shell-quoted
+  std::string settings;  // the settings the caller resolved, e.g. the text of a settings file it wrote
+  bool empty() const { return command.empty() && settings.empty(); }
+};
+
 struct PipelineParams {
   OrbitParams orbit;                // views, elevation offset, ... (its width/height: see canonical_width)
   int canonical_width = 0, canonical_height = 0;  // canonical render grid; 0 = the input's working size
@@ -84,6 +94,7 @@ struct PipelineParams {
   // random_background (the input's). Here they stay at TrainParams's defaults or repeat the owner's
   // value; anything else is refused by check_train_owners, naming both fields.
   TrainParams train;
+  RunInvocation invocation;  // for report.json only (see RunInvocation)
 };
 
 // Refuses a value in params.train that its owner (see PipelineParams::train)

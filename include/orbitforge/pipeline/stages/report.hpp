@@ -220,6 +220,8 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"orbit_check", orbit.value("check", nlohmann::json())},
                       {"quality", quality},
                       {"completion", completion}};
+  if (!p.invocation.empty())
+    r["invocation"] = {{"command", p.invocation.command}, {"settings", p.invocation.settings}};
   if (p.deformable && p.static_proxy_diagnostics)
     r["static_proxy"] = nlohmann::json::parse(read_file_bytes((out / "static_proxy.json").string()));
   write_file_atomic((out / "report.json").string(), r.dump(1) + "\n");
