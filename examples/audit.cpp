@@ -5,6 +5,7 @@
 //   audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [--protocol measured|paper]
 //         [full_pipeline's flags] [--shard i/n | --shard-count N] [--report-only] --out DIR
 //   audit --write-synthetic DIR [--width W --height H] [--seed S]
+//   audit --write-composite DIR --composite-of COLMAP_DIR [--seed S]
 //
 // Each input DIR (a COLMAP folder, as full_pipeline --colmap takes) runs into
 // OUT/<basename of DIR>/ exactly as full_pipeline would, and resumes like it:
@@ -23,7 +24,10 @@
 // record where it came from (audit/audit_shard.hpp, choose_shard).
 // --write-synthetic DIR writes the project's embedded synthetic input as a COLMAP
 // folder (DIR/images, DIR/sparse/0) and exits: an input for trying the audit, and
-// its scheduler tests, on a machine without recorded data.
+// its scheduler tests, on a machine without recorded data. --write-composite DIR
+// writes the photographs of COLMAP_DIR (an object on black) over a textured wall
+// rendered at each photograph's camera (pipeline/inputs/backdrop_composite.hpp):
+// a real object on a backdrop whose borders disagree.
 // Exit status: 0 every input succeeded, 1 some failed (or wait for external
 // completion), 2 bad arguments.
 #include <chrono>
@@ -45,6 +49,7 @@
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "pipeline_flags.hpp"
+#include "orbitforge/pipeline/inputs/backdrop_composite.hpp"
 #include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 
 using namespace orbitforge;
@@ -59,6 +64,7 @@ const char* kDescription =
     "  audit --inputs DIR... --completion NAME [--cameras recorded|estimated] [flags]\n"
     "        [--shard i/n | --shard-count N] [--report-only] --out DIR\n"
     "  audit --write-synthetic DIR [--width W --height H] [--seed S]\n"
+    "  audit --write-composite DIR --composite-of COLMAP_DIR [--seed S]\n"
     "Each input runs into OUT/<basename of DIR>/ exactly as full_pipeline --colmap DIR would, and resumes like it.\n"
     "Audit defaults: --holdout-every 8, --compare-g1-paper, --oracle-bound. Every run writes OUT/settings.toml,\n"
     "which --config replays.";
@@ -71,6 +77,16 @@ std::string input_name(const std::string& dir) {
   return name;
 }
 
+// An input as a COLMAP folder (DIR/images, DIR/sparse/0 without points): the
+// frames with a camera and their cameras.
+void write_as_colmap(const std::string& dir, const PipelineInput<S>& in) {
+  fs::create_directories(fs::path(dir) / "images");
+  write_colmap_text((fs::path(dir) / "sparse" / "0").string(), in.cameras);
+  for (std::size_t i = 0; i < in.cameras.size(); ++i)
+    if (in.cameras[i].valid) write_png((fs::path(dir) / "images" / in.cameras[i].name).string(), in.images[i]);
+  std::fprintf(stderr, "audit: wrote %s to %s\n", in.description.c_str(), dir.c_str());
+}
+
 // The embedded synthetic input (full_pipeline's default) as a COLMAP folder that
 // --inputs takes: every frame's PNG and the recorded (noisy) cameras, no points.
 void write_synthetic(const std::string& dir, const cli::PipelineFlags& f) {
@@ -79,12 +95,18 @@ void write_synthetic(const std::string& dir, const cli::PipelineFlags& f) {
   sp.height = f.height > 0 ? f.height : 96;
   sp.focal = 160.0 * sp.height / 128.0;  // full_pipeline's field of view
   if (f.params.seed != 0) sp.seed = f.params.seed;
-  const PipelineInput<S> in = synthetic_pipeline_input<S>(sp, f.params.threads);
-  fs::create_directories(fs::path(dir) / "images");
-  write_colmap_text((fs::path(dir) / "sparse" / "0").string(), in.cameras);
-  for (std::size_t i = 0; i < in.cameras.size(); ++i)
-    write_png((fs::path(dir) / "images" / in.cameras[i].name).string(), in.images[i]);
-  std::fprintf(stderr, "audit: wrote %s to %s\n", in.description.c_str(), dir.c_str());
+  write_as_colmap(dir, synthetic_pipeline_input<S>(sp, f.params.threads));
+}
+
+// The photographs of `source` (an object on black, e.g. a Middlebury ring) over a
+// textured wall, at their own size, as a COLMAP folder with the same cameras.
+void write_composite(const std::string& dir, const std::string& source, const cli::PipelineFlags& f) {
+  PipelineInput<S> in = load_colmap_input<S>(source, "1-", WorkingSize::native());
+  BackdropCompositeParams bp;
+  if (f.params.seed != 0) bp.seed = f.params.seed;
+  bp.threads = f.params.threads;
+  composite_on_backdrop(in, bp);
+  write_as_colmap(dir, in);
 }
 
 std::optional<std::string> getenv_lookup(const std::string& name) {
@@ -95,7 +117,7 @@ std::optional<std::string> getenv_lookup(const std::string& name) {
 // Everything the command line sets.
 struct Args {
   std::vector<std::string> inputs;
-  std::string out, shard_text, shard_count_text, synthetic_dir, cameras = "recorded";
+  std::string out, shard_text, shard_count_text, synthetic_dir, composite_dir, composite_of, cameras = "recorded";
   bool report_only = false;
   cli::PipelineFlags flags;
 };
@@ -122,6 +144,11 @@ std::unique_ptr<CLI::App> define(Args& a) {
                   "write the embedded synthetic input as a COLMAP folder and exit (default 96 x 96; --seed S picks "
                   "another scene)")
       ->group(audit);
+  app->add_option("--write-composite", a.composite_dir,
+                  "write --composite-of's photographs (an object on black) over a textured wall rendered at each "
+                  "camera as a COLMAP folder and exit (--seed S picks another wall)")
+      ->group(audit);
+  app->add_option("--composite-of", a.composite_of, "the COLMAP folder --write-composite composites")->group(audit);
   cli::add_pipeline_flags(*app, a.flags);
   app->add_option("--out", a.out, "output folder: OUT/<name>/ per input, and the tables");
   return app;
@@ -149,6 +176,14 @@ int main(int argc, char** argv) {
       if (!inputs.empty() || !out.empty())
         throw cli::UsageError("audit: --write-synthetic DIR runs on its own (no --inputs, no --out)");
       write_synthetic(args.synthetic_dir, flags);
+      return 0;
+    }
+    if (!args.composite_dir.empty() || !args.composite_of.empty()) {
+      if (args.composite_dir.empty() || args.composite_of.empty())
+        throw cli::UsageError("audit: --write-composite DIR and --composite-of COLMAP_DIR go together");
+      if (!inputs.empty() || !out.empty())
+        throw cli::UsageError("audit: --write-composite DIR runs on its own (no --inputs, no --out)");
+      write_composite(args.composite_dir, args.composite_of, flags);
       return 0;
     }
     if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required" + usage_hint);
