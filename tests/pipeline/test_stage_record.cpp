@@ -141,6 +141,7 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
       {"plateau tolerance, plateau off", [](TrainParams& t) { t.plateau_tolerance = 0.02; }},
       {"time noise steps, noise off", [](TrainParams& t) { t.time_noise_steps = 1000; }},
       {"threads", [](TrainParams& t) { t.threads = 7; }},
+      {"screen-size fraction, fixed background", [](TrainParams& t) { t.densify_params.max_screen_fraction = 0.3; }},
   };
   TrainParams quiet = base;
   quiet.time_noise = 0;
@@ -151,6 +152,12 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
     c.second(t);
     CHECK(key(t) == kq);
   }
+  // The screen-size fraction acts with a random background only, and is keyed then.
+  TrainParams random_bg = base;
+  random_bg.random_background = true;
+  TrainParams random_bg_other = random_bg;
+  random_bg_other.densify_params.max_screen_fraction = 0.3;
+  CHECK(key(random_bg_other) != key(random_bg));
   // A static reconstruction ignores every deformation setting.
   TrainParams still = base;
   still.deformable = false;
@@ -164,8 +171,8 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
 #if defined(__x86_64__) && defined(__linux__)
   // A tripwire, not a result: a setting added to (or removed from) these structs
   // must be keyed in train_settings, then these sizes updated.
-  CHECK(sizeof(TrainParams) == 408);
-  CHECK(sizeof(DensifyParams) == 80);
+  CHECK(sizeof(TrainParams) == 416);
+  CHECK(sizeof(DensifyParams) == 88);
   CHECK(sizeof(DensifySchedule) == 16);
   CHECK(sizeof(DeformationFieldParams) == 40);
   CHECK(sizeof(AdamParams) == 24);
