@@ -145,7 +145,7 @@ std::unique_ptr<CLI::App> define(Args& a) {
       ->group(single);
   cli::add_optional(*app, "--max-screen-fraction", a.max_screen_fraction,
                     "with a random background, prune Gaussians wider on screen than this fraction of the frames' "
-                    "longer side (default 0.15; 0: 3DGS's 20 pixels)")
+                    "longer side, never below 20 pixels (default 0.15; 0: 3DGS's 20 pixels)")
       ->check(cli::non_negative())
       ->group(single);
   app->add_option("--out", a.out, "output folder")->required();

@@ -56,8 +56,8 @@ struct DensifyParams {
   double max_screen_radius = 20;    // size prune: largest 2D radius seen > this (pixels)
   // With a random background (the frames' borders disagree, so the model must
   // draw the backdrop too) and > 0: the screen-size limit is this fraction of
-  // the frames' longer side instead (DensifyDriver sets max_screen_radius from
-  // it). 3DGS's 20 pixels, set for frames about 1,000 pixels wide with a normal
+  // the frames' longer side when that is larger (DensifyDriver sets
+  // max_screen_radius from it; small frames keep the pixel limit). 3DGS's 20 pixels, set for frames about 1,000 pixels wide with a normal
   // lens, prune the Gaussians that cover a backdrop faster than densification
   // makes them: with a long lens (Middlebury's 11 degrees at 320 pixels) they cap
   // a Gaussian at 0.4 % of the object, and deformable models fell to 1-5k

@@ -38,7 +38,8 @@ class DensifyDriver {
   DensifyDriver(const TrainParams& p, const DensifySchedule& schedule, int image_long_side)
       : enabled_(p.densify), params_(p.densify_params), schedule_(schedule), white_(white_background(p)) {
     if (p.random_background && params_.max_screen_fraction > 0 && image_long_side > 0)
-      params_.max_screen_radius = params_.max_screen_fraction * double(image_long_side);
+      params_.max_screen_radius =
+          std::max(params_.max_screen_radius, params_.max_screen_fraction * double(image_long_side));
   }
 
   // Iteration `it`, after the optimizer step: `ndc_grad_norm` and `radius` are
