@@ -93,28 +93,25 @@ inline CLI::Validator at_least(long long lo) {
       ">=" + std::to_string(lo));
 }
 
-// A positive number (> 0).
-inline CLI::Validator positive() {
+// A finite number for which `ok` holds; `need` says what it must be.
+inline CLI::Validator number_where(bool (*ok)(double), const std::string& need, const std::string& name) {
   return CLI::Validator(
-      [](std::string& s) -> std::string {
+      [ok, need](std::string& s) -> std::string {
         double x = 0;
-        if (!CLI::detail::lexical_cast(s, x) || !std::isfinite(x) || !(x > 0))
-          return "must be a positive number, got '" + s + "'";
+        if (!CLI::detail::lexical_cast(s, x) || !std::isfinite(x) || !ok(x)) return need + ", got '" + s + "'";
         return {};
       },
-      "POSITIVE");
+      name);
+}
+
+// A positive number (> 0).
+inline CLI::Validator positive() {
+  return number_where([](double x) { return x > 0; }, "must be a positive number", "POSITIVE");
 }
 
 // A finite number >= 0 (CLI::NonNegativeNumber's message prints the largest double).
 inline CLI::Validator non_negative() {
-  return CLI::Validator(
-      [](std::string& s) -> std::string {
-        double x = 0;
-        if (!CLI::detail::lexical_cast(s, x) || !std::isfinite(x) || !(x >= 0))
-          return "must be a finite number >= 0, got '" + s + "'";
-        return {};
-      },
-      "NON-NEGATIVE");
+  return number_where([](double x) { return x >= 0; }, "must be a finite number >= 0", "NON-NEGATIVE");
 }
 
 // --threads N: 0 (all hardware threads) up to orbitforge::Limits::max_threads,
