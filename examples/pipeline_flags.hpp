@@ -23,6 +23,7 @@
 #include "orbitforge/pipeline/protocol.hpp"
 #include "orbitforge/pipeline/report/reference.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
+#include "orbitforge/train/init.hpp"
 
 namespace orbitforge::cli {
 
@@ -131,6 +132,11 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
   app.add_option("--views", p.orbit.views, "views of the canonical orbit")
       ->transform(at_least(9))
       ->check(CLI::Range(9, kMaxOrbitViews))
+      ->group(method);
+  app.add_option("--init-points", p.init_points,
+                 "random initial points when the input has none (the embedded synthetic input)")
+      ->transform(at_least(1))
+      ->check(CLI::Range(std::size_t(1), kMaxRandomPoints))
       ->group(method);
   app.add_option("--render-stride", p.render_stride, "render R0 / R1 at every K-th canonical view")
       ->transform(at_least(1))

@@ -34,6 +34,7 @@ expect_refusal 2 "--views" "$bin/fit_orbit" --synthetic --views 100000000 --out 
 ms=$(( ($(date +%s%N) - start) / 1000000 ))
 (( ms < 1000 )) || fail "--views 100000000 took $ms ms to refuse"
 expect_refusal 2 "--views" "$bin/full_pipeline" --views 100000000 --out "$work/run"
+expect_refusal 2 "--init-points" "$bin/full_pipeline" --init-points 20000000 --out "$work/run"
 expect_refusal 2 "--frames" "$bin/fit_orbit" --synthetic --frames '' --out "$work/o.json"
 [[ ! -e "$work/o.json" ]] || fail "a refused fit_orbit left orbit.json"
 # An unknown flag and a flag missing its value: status 2, the flag named.
@@ -79,7 +80,7 @@ expect_refusal 1 "beyond the 91 frames" "$bin/fit_orbit" --colmap "$work/video" 
 # with only --out given, make the same run; report.json / metrics.json record the
 # command line and those settings.
 tiny=(--width 32 --height 32 --iters 4 --median-samples 2 --seed 5 --threads 2)
-"$bin/full_pipeline" "${tiny[@]}" --views 9 --completion none --quiet --prompt "a 'quoted' prompt" \
+"$bin/full_pipeline" "${tiny[@]}" --views 9 --init-points 300 --completion none --quiet --prompt "a 'quoted' prompt" \
   --out "$work/p1" > /dev/null 2> "$work/p1.err" || fail "tiny full_pipeline failed: $(tail -c 600 "$work/p1.err")"
 [[ -s "$work/p1/settings.toml" ]] || fail "full_pipeline wrote no settings.toml"
 "$bin/full_pipeline" --config "$work/p1/settings.toml" --out "$work/p2" > /dev/null 2> "$work/p2.err" ||
@@ -102,7 +103,7 @@ def load(run, name): return json.load(open(f"{w}/{run}/{name}"))
 def settings(run): return [l for l in open(f"{w}/{run}/settings.toml") if not l.startswith("out=")]
 a, b = load("p1", "report.json"), load("p2", "report.json")
 s = a["settings"]
-assert (s["iters_g0"], s["iters_g1"], s["views"], s["width"], s["median_samples"]) == (4, 4, 9, 32, 2), s
+assert (s["iters_g0"], s["iters_g1"], s["views"], s["width"], s["median_samples"], s["init_points"]) == (4, 4, 9, 32, 2, 300), s
 for key in ("settings", "prompt", "background", "frames", "completion_provider"):
     assert a[key] == b[key], (key, a[key], b[key])
 assert "--prompt 'a '\\''quoted'\\'' prompt'" in a["invocation"]["command"], a["invocation"]["command"]

@@ -131,11 +131,16 @@ GaussianScene<Scalar> init_from_points(const std::vector<Scalar>& points, const 
 // depth uniform in [depth_min, depth_max] times that camera's distance to the
 // centroid of all camera centres (or, for cameras bunched together, their extent
 // scale `fallback_distance`); colours uniform; scales from nearest neighbours.
+// The largest random cloud init_random makes: 10 million Gaussians are a few
+// GiB with degree-3 SH, far beyond what a scene starts from.
+constexpr std::size_t kMaxRandomPoints = 10000000;
+
 template <class Scalar>
 GaussianScene<Scalar> init_random(const std::vector<Camera<Scalar>>& cameras, Scalar fallback_distance,
                                   const InitParams& p = {}) {
   ensure(!cameras.empty(), "init_random: no cameras");
-  ensure(p.random_points > 0, "init_random: random_points must be positive");
+  ensure(p.random_points > 0 && p.random_points <= kMaxRandomPoints, "init_random: random_points must lie in [1, ",
+         kMaxRandomPoints, "], not ", p.random_points);
   ensure(p.depth_min > 0 && p.depth_max > p.depth_min, "init_random: need 0 < depth_min < depth_max");
   typename Camera<Scalar>::Vec3 centroid = Camera<Scalar>::Vec3::Zero();
   for (const auto& c : cameras) centroid += c.center();
