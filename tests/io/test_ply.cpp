@@ -207,6 +207,29 @@ TEST_CASE("PLY writer produces the standard INRIA layout", "[io][ply]") {
     }
 }
 
+TEST_CASE("PLY writer: float64 positions keep a scene far from the origin", "[io][ply]") {
+  auto scene = random_scene<float>(40, 1, 11u).cast<double>();
+  // 1.3e5 units out, detail at 1e-4: float32 steps by 0.0078 there.
+  for (std::size_t i = 0; i < scene.means.size(); ++i) scene.means[i] = 1.3e5 + 1e-4 * double(i % 17) + 1e-9;
+  PlyWriteOptions o;
+  o.double_positions = true;
+  const std::string bytes = ply_bytes(scene, o);
+  const std::string header = bytes.substr(0, bytes.find("end_header\n"));
+  CHECK(header.find("property double x\nproperty double y\nproperty double z\nproperty float nx\n") !=
+        std::string::npos);
+  const auto back = read_ply_from_memory<double>(bytes, "far.ply");
+  REQUIRE(back.size() == scene.size());
+  for (std::size_t i = 0; i < scene.means.size(); ++i) REQUIRE(back.means[i] == scene.means[i]);
+  for (std::size_t i = 0; i < scene.sh.size(); ++i) REQUIRE(back.sh[i] == double(float(scene.sh[i])));
+  for (std::size_t i = 0; i < scene.rotations.size(); ++i)
+    REQUIRE(back.rotations[i] == double(float(scene.rotations[i])));
+  // The same scene in float32 loses its detail, which is why the option exists.
+  const auto lossy = read_ply_from_memory<double>(ply_bytes(scene), "near.ply");
+  double worst = 0;
+  for (std::size_t i = 0; i < scene.means.size(); ++i) worst = std::max(worst, std::abs(lossy.means[i] - scene.means[i]));
+  CHECK(worst > 1e-3);
+}
+
 TEMPLATE_TEST_CASE("PLY reader accepts any property order, types and byte order", "[io][ply]", float, double) {
   using S = TestType;
   std::mt19937 rng(42);

@@ -488,9 +488,17 @@ GaussianScene<Scalar> read_ply(const std::string& path, std::vector<std::string>
   return read_ply_from_memory<Scalar>(read_file_bytes(path), path, warnings);
 }
 
-// The bytes of the standard INRIA layout (binary little endian float32).
+// How a scene is written. Positions in float64 are for a scene far from its
+// model's origin, where float32 cannot hold its detail (1e5 units out, float32
+// steps by 0.008); readers that take only float32 positions will refuse them.
+struct PlyWriteOptions {
+  bool double_positions = false;
+};
+
+// The bytes of the standard INRIA layout (binary little endian float32; x, y, z
+// float64 with options.double_positions).
 template <class Scalar>
-std::string ply_bytes(const GaussianScene<Scalar>& scene) {
+std::string ply_bytes(const GaussianScene<Scalar>& scene, const PlyWriteOptions& options = {}) {
   scene.check_consistent();
   const int degree = scene.sh_degree;
   const int K = sh_coefficient_count(degree);
@@ -498,7 +506,9 @@ std::string ply_bytes(const GaussianScene<Scalar>& scene) {
   std::string header = "ply\nformat binary_little_endian 1.0\ncomment written by orbitforge\nelement vertex " +
                        std::to_string(scene.size()) + "\n";
   const char* fixed_names[] = {"x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"};
-  for (const char* p : fixed_names) header += std::string("property float ") + p + "\n";
+  for (int i = 0; i < 9; ++i)
+    header += std::string(i < 3 && options.double_positions ? "property double " : "property float ") +
+              fixed_names[i] + "\n";
   for (int i = 0; i < rest; ++i) header += "property float f_rest_" + std::to_string(i) + "\n";
   header += "property float opacity\n";
   for (int i = 0; i < 3; ++i) header += "property float scale_" + std::to_string(i) + "\n";
@@ -507,16 +517,27 @@ std::string ply_bytes(const GaussianScene<Scalar>& scene) {
 
   const std::size_t floats = std::size_t(9 + rest + 1 + 3 + 4);
   const std::size_t n = scene.size();
+  const std::size_t row = floats * 4 + (options.double_positions ? 12 : 0);
   std::string out = header;
-  out.resize(header.size() + n * floats * 4);
+  out.resize(header.size() + n * row);
   auto* w = reinterpret_cast<unsigned char*>(&out[header.size()]);
   const bool swap = !host_is_little_endian();
   auto emit = [&](Scalar v) {
     ply_detail::store_float_le(float(v), w, swap);
     w += 4;
   };
+  auto emit_double = [&](double v) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &v, 8);
+    for (int b = 0; b < 8; ++b) *w++ = static_cast<unsigned char>(bits >> (8 * b));
+  };
   for (std::size_t g = 0; g < n; ++g) {
-    for (int i = 0; i < 3; ++i) emit(scene.means[3 * g + std::size_t(i)]);
+    for (int i = 0; i < 3; ++i) {
+      if (options.double_positions)
+        emit_double(double(scene.means[3 * g + std::size_t(i)]));
+      else
+        emit(scene.means[3 * g + std::size_t(i)]);
+    }
     for (int i = 0; i < 3; ++i) emit(Scalar(0));
     const Scalar* sh = scene.sh.data() + g * std::size_t(3 * K);
     for (int c = 0; c < 3; ++c) emit(sh[c]);
@@ -530,8 +551,8 @@ std::string ply_bytes(const GaussianScene<Scalar>& scene) {
 }
 
 template <class Scalar>
-void write_ply(const std::string& path, const GaussianScene<Scalar>& scene) {
-  write_file_atomic(path, ply_bytes(scene));
+void write_ply(const std::string& path, const GaussianScene<Scalar>& scene, const PlyWriteOptions& options = {}) {
+  write_file_atomic(path, ply_bytes(scene, options));
 }
 
 }  // namespace orbitforge
