@@ -279,7 +279,7 @@ template <class Scalar>
 PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
                                           const PipelineFlags& f) {
   const auto size = working_size(f);
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size, /*normalise=*/true);
   finish_recorded_input(program, input, f);
   return input;
 }
@@ -312,7 +312,7 @@ PipelineInput<Scalar> load_estimated_input(const std::string& program, const std
   const CameraStageResult cr = stage_cameras(out, p);
   if (cr.skipped && progress) std::fprintf(stderr, "   cameras: outputs verified, skipped\n");
   if (cameras_key) *cameras_key = cr.key;
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(cr.dataset, f.frames, working_size(f));
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(cr.dataset, f.frames, working_size(f), /*normalise=*/true);
   input.description = (p.video.empty() ? "images " + p.images : "video " + p.video) + " frames " + f.frames +
                       " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) + " of " +
                       std::to_string(cr.source_names.size()) + " source frames)";

@@ -331,6 +331,83 @@ TEST_CASE("pipeline: G1 that keeps the source beats the paper's V_hat-only G1 on
   CHECK(r["quality"]["bound"]["gap_heldout"]["psnr"].get<double>() > r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>());
 }
 
+// A model far from its origin and 100 times larger: the run works in the
+// normalised frame (here exactly the tiny input's), so it trains the same model;
+// its files are in the model's frame, positions in float64.
+TEST_CASE("pipeline: a far, rescaled model trains as the normalised one, files in the model's frame",
+          "[pipeline][frame]") {
+  PipelineParams p = tiny_params();
+  p.iters_g0 = p.iters_g1 = 60;
+  p.checkpoint_every = 0;
+  p.static_proxy_diagnostics = false;
+  PipelineInput<float> far = tiny_input_data();
+  far.frame.origin = Eigen::Vector3d(1e5, -7e4, 5e4);
+  far.frame.scale = 0.01;
+  REQUIRE(far.frame.far_from_origin());
+  const fs::path near_dir = scratch().root / "frame_near", far_dir = scratch().root / "frame_far";
+  const auto rn = run_pipeline(tiny_input_data(), p, near_dir.string());
+  const auto rf = run_pipeline(far, p, far_dir.string());
+
+  // The same quality, view for view.
+  for (const char* k : {"R0", "R1"})
+    for (const char* set : {"supported_train", "supported_heldout", "gap_heldout"}) {
+      CAPTURE(k, set);
+      CHECK(rf.at("quality").at(k).at(set).at("psnr").get<double>() ==
+            Approx(rn.at("quality").at(k).at(set).at("psnr").get<double>()).margin(1e-3));
+    }
+  CHECK(rf.at("frame").at("scale").get<double>() == 0.01);
+  CHECK_FALSE(rn.contains("frame"));
+
+  // gmed0.ply and final.ply: the near run's scenes moved to the model's frame.
+  // Gmed0 is the same to float rounding; G1 reads V_hat's cameras back from
+  // vhat.json, whose rotations are written orthonormal in double (one float step
+  // from the near run's), so its scene differs by a little more.
+  for (const char* ply : {"gmed0.ply", "final.ply"}) {
+    CAPTURE(ply);
+    const auto near_scene = read_ply<double>((near_dir / ply).string());
+    const auto far_scene = read_ply<double>((far_dir / ply).string());
+    REQUIRE(far_scene.size() == near_scene.size());
+    CHECK(read_file_bytes((far_dir / ply).string()).find("property double x") != std::string::npos);
+    double mean_error = 0, log_scale_error = 0;  // in the normalised frame
+    for (std::size_t i = 0; i < near_scene.means.size(); ++i)
+      mean_error = std::max(mean_error,
+                            std::abs((far_scene.means[i] - far.frame.origin[long(i % 3)]) * 0.01 - near_scene.means[i]));
+    for (std::size_t i = 0; i < near_scene.log_scales.size(); ++i)
+      log_scale_error =
+          std::max(log_scale_error, std::abs(far_scene.log_scales[i] + std::log(0.01) - near_scene.log_scales[i]));
+    const bool g1 = std::string(ply) == "final.ply";
+    CHECK(mean_error < (g1 ? 1e-4 : 1e-6));  // the scene is about 2 units across
+    CHECK(log_scale_error < (g1 ? 1e-3 : 1e-5));
+  }
+
+  // orbit.json: lengths and camera centres in the model's frame, angles unchanged.
+  const auto on = parse_file(near_dir / "orbit.json"), of = parse_file(far_dir / "orbit.json");
+  CHECK(of["orbit"]["radius"].get<double>() == Approx(on["orbit"]["radius"].get<double>() / 0.01).epsilon(1e-6));
+  for (int a = 0; a < 3; ++a)
+    CHECK(of["orbit"]["center"][a].get<double>() ==
+          Approx(on["orbit"]["center"][a].get<double>() / 0.01 + far.frame.origin[a]).margin(1e-6));
+  for (int v : {0, 36}) {
+    const auto& cn = on["cameras"][v];
+    const auto& cf = of["cameras"][v];
+    CHECK(cf["azimuth_deg"] == cn["azimuth_deg"]);
+    Eigen::Matrix3d Rn, Rf;
+    Eigen::Vector3d tn, tf;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) {
+        Rn(r, c) = cn["R"][r][c].get<double>();
+        Rf(r, c) = cf["R"][r][c].get<double>();
+      }
+      tn[r] = cn["t"][r].get<double>();
+      tf[r] = cf["t"][r].get<double>();
+    }
+    CHECK((Rf - Rn).cwiseAbs().maxCoeff() < 1e-6);
+    CHECK((Rf.transpose() * Rf - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-14);
+    // The centre a reader computes, 1.3e5 out, against the near run's moved back.
+    const Eigen::Vector3d centre_near = -Rn.transpose() * tn, centre_far = -Rf.transpose() * tf;
+    CHECK((centre_far - (centre_near / 0.01 + far.frame.origin)).norm() < 1e-4);
+  }
+}
+
 TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipeline][resume]") {
   const fs::path& dir = oracle_run();
   const auto before = read_file_bytes((dir / "report.json").string());

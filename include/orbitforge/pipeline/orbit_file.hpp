@@ -1,7 +1,8 @@
 #pragma once
 // orbit.json: the canonical orbit, its support bins, the completion layout and the
 // fitting diagnostics, as fit_orbit writes it and render_orbit / the pipeline read
-// it. Everything is in the input cameras' world frame; camera poses use the
+// it. Everything is in the input model's world frame (the pipeline's fit, made in
+// its normalised frame, is moved back on writing); camera poses use the
 // library's convention x_cam = R x_world + t (OpenCV axes), R written as three rows.
 #include <cmath>
 #include <nlohmann/json.hpp>
@@ -12,6 +13,7 @@
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/metrics/coverage.hpp"
+#include "orbitforge/splat/scene_frame.hpp"
 
 namespace orbitforge {
 
@@ -46,20 +48,25 @@ std::vector<Scalar> canonical_azimuths(const OrbitFit<Scalar>& fit) {
   return az;
 }
 
+// `frame`: the fit is in that frame's normalised coordinates and orbit.json is
+// written in the model's own (positions and lengths moved back in double;
+// directions and angles are the same in both).
 template <class Scalar>
-nlohmann::json orbit_json(const OrbitFit<Scalar>& fit, const CompletionLayout& layout) {
+nlohmann::json orbit_json(const OrbitFit<Scalar>& fit, const CompletionLayout& layout, const SceneFrame& frame = {}) {
   using orbit_file_detail::vec_json;
   const auto& g = fit.orbit;
   const auto& k = fit.intrinsics;
+  const double length = 1 / frame.scale;
+  auto point = [&](const Eigen::Matrix<Scalar, 3, 1>& x) { return vec_json(frame.to_user(x.template cast<double>())); };
   nlohmann::json j;
-  j["orbit"] = {{"center", vec_json(g.center)},
+  j["orbit"] = {{"center", point(g.center)},
                 {"normal", vec_json(g.normal)},
                 {"e1", vec_json(g.e1)},
                 {"e2", vec_json(g.e2)},
-                {"radius", double(g.radius)},
+                {"radius", double(g.radius) * length},
                 {"theta0_deg", double(g.theta0_deg)},
                 {"direction", g.direction},
-                {"look_at", vec_json(g.look_at)},
+                {"look_at", point(g.look_at)},
                 {"elevation_offset_deg", double(g.elevation_offset_deg)},
                 {"views", fit.views},
                 {"width", k.width},
@@ -79,9 +86,9 @@ nlohmann::json orbit_json(const OrbitFit<Scalar>& fit, const CompletionLayout& l
                       {"cameras_skipped", skipped},
                       {"skipped_reasons", reasons},
                       {"source_span_deg", double(d.source_span_deg)},
-                      {"circle_rmse", double(d.circle_rmse)},
-                      {"radius_std", double(d.radius_std)},
-                      {"height_std", double(d.height_std)},
+                      {"circle_rmse", double(d.circle_rmse) * length},
+                      {"radius_std", double(d.radius_std) * length},
+                      {"height_std", double(d.height_std) * length},
                       {"lookat_error_deg", double(d.lookat_error_deg)},
                       {"convention", d.convention},
                       {"normal_rule", d.normal_rule},
@@ -104,7 +111,8 @@ nlohmann::json orbit_json(const OrbitFit<Scalar>& fit, const CompletionLayout& l
   const auto cov = orbit_coverage(az);
   j["coverage"] = {{"A", double(cov.span_deg)}, {"M", double(cov.monotone)}, {"closed", cov.closed}};
   nlohmann::json cams = nlohmann::json::array();
-  for (int i = 0; i < fit.views; ++i) cams.push_back(orbit_file_detail::camera_json(i, az[i], fit.cameras[i]));
+  for (int i = 0; i < fit.views; ++i)
+    cams.push_back(orbit_file_detail::camera_json(i, double(az[i]), frame.to_user_for_file(fit.cameras[i])));
   j["cameras"] = cams;
   return j;
 }

@@ -14,6 +14,7 @@
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/image_folder.hpp"
+#include "orbitforge/io/ply.hpp"
 #include "orbitforge/pipeline/completion/prompt.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/params.hpp"
@@ -132,6 +133,19 @@ struct PipelineRun {
     t.random_background = input->random_background;
     t.min_densify_interval = params.min_densify_interval;
     return t;
+  }
+
+  // Scene files (gmed0.ply, final.ply, ...) are in the input model's own frame,
+  // while the run works in the input's (PipelineInput::frame, identity unless the
+  // input was loaded normalised). The move is made in double; far from the
+  // model's origin the positions are written in float64.
+  void write_scene(const std::string& path, const GaussianScene<Scalar>& scene) const {
+    PlyWriteOptions o;
+    o.double_positions = input->frame.far_from_origin();
+    write_ply(path, input->frame.to_user(scene.template cast<double>()), o);
+  }
+  GaussianScene<Scalar> read_scene(const std::string& path) const {
+    return input->frame.to_normalised(read_ply<double>(path)).template cast<Scalar>();
   }
 
   Renderer<Scalar> renderer() const {

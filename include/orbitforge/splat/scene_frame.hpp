@@ -22,6 +22,8 @@
 #include <cstddef>
 #include <vector>
 
+#include <Eigen/Geometry>
+
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/splat/gaussians.hpp"
@@ -33,6 +35,10 @@ struct SceneFrame {
   double scale = 1;
 
   bool is_identity() const { return scale == 1 && origin.isZero(0); }
+  // Whether the model's origin lies more than 100 scene sizes (the normalised unit)
+  // away: float32 positions in the model's frame then resolve less than about
+  // 1e-5 of the scene, so files in that frame need float64 positions.
+  bool far_from_origin() const { return origin.norm() * scale > 100; }
 
   Eigen::Vector3d to_normalised(const Eigen::Vector3d& x) const { return scale * (x - origin); }
   Eigen::Vector3d to_user(const Eigen::Vector3d& x) const { return x / scale + origin; }
@@ -51,6 +57,18 @@ struct SceneFrame {
     const Eigen::Vector3d t = c.t.template cast<double>(), Ro = c.R.template cast<double>() * origin;
     o.t = (t / scale - Ro).template cast<S>();
     return o;
+  }
+
+  // A camera in the model's frame for writing to a file, in double. Unless the
+  // frame is the identity, the rotation is made orthonormal in double first:
+  // far from the origin a reader's centre -R^T t cancels R^T R origin, which a
+  // float rotation leaves wrong by about 1e-7 of the distance.
+  template <class S>
+  Camera<double> to_user_for_file(const Camera<S>& c) const {
+    Camera<double> d = c.template cast<double>();
+    if (is_identity()) return d;
+    d.R = Eigen::Quaterniond(d.R).normalized().toRotationMatrix();
+    return to_user(d);
   }
 
   // Points [N][3] in place (double arithmetic whatever S is).

@@ -21,8 +21,11 @@
 
 namespace orbitforge {
 
+// vhat.json's cameras are in the model's frame; `frame` moves them (in double)
+// into the one the run works in.
 template <class Scalar>
-std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::string& file, bool* reuse_r0 = nullptr) {
+std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::string& file, const SceneFrame& frame,
+                                         bool* reuse_r0 = nullptr) {
   namespace fs = std::filesystem;
   const std::string path = (fs::path(out) / file).string();
   nlohmann::json j;
@@ -34,11 +37,11 @@ std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::stri
   if (reuse_r0) *reuse_r0 = j.value("reuse_r0", false);
   std::vector<VhatFrame<Scalar>> frames;
   ensure(j.contains("frames") && j["frames"].is_array(), path, ": no \"frames\" list");
-  const auto cams = cameras_from_json<Scalar>(j["frames"], path);
+  const auto cams = cameras_from_json<double>(j["frames"], path);
   for (std::size_t i = 0; i < cams.size(); ++i) {
     const auto& e = j["frames"][i];
     VhatFrame<Scalar> f;
-    f.camera = cams[i];
+    f.camera = frame.to_normalised(cams[i]).template cast<Scalar>();
     f.position = e.at("position").get<double>();
     f.origin = e.value("origin", std::string());
     f.from_r0 = e.value("kind", std::string()) == "arc_render";
@@ -201,8 +204,8 @@ void stage_completion(PipelineRun<Scalar>& run, CompletionProvider<Scalar>& prov
   for (std::size_t i = 0; i < vhat.size(); ++i) {
     const std::string file = "vhat/" + view_file(int(i));
     vhat_outputs.push_back(file);
-    nlohmann::json e = orbit_file_detail::camera_json(int(i), Scalar(vhat[i].position * 360.0 / period),
-                                                      vhat[i].camera);
+    nlohmann::json e = orbit_file_detail::camera_json(int(i), double(Scalar(vhat[i].position * 360.0 / period)),
+                                                      run.input->frame.to_user_for_file(vhat[i].camera));
     e["file"] = file;
     e["position"] = vhat[i].position;
     e["origin"] = vhat[i].origin;

@@ -55,7 +55,7 @@ void stage_g0(PipelineRun<Scalar>& run) {
   const GaussianScene<Scalar> gmed0 = reconstruct_and_bake(run, frames, initial_scene(run, frames),
                                                            run.train_params(p.iters_g0, p.deformable),
                                                            (fs::path(run.out) / "g0").string(), key, "G0");
-  write_ply((fs::path(run.out) / "gmed0.ply").string(), gmed0);
+  run.write_scene((fs::path(run.out) / "gmed0.ply").string(), gmed0);
   render_orbit_views(run, gmed0, "R0", "R0");
   finish_stage(run, "g0", key, t0, settings, outputs);
 }

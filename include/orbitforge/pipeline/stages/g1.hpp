@@ -70,7 +70,7 @@ GaussianScene<Scalar> train_second(PipelineRun<Scalar>& run, const std::vector<T
                                    const std::string& label) {
   namespace fs = std::filesystem;
   const auto& p = run.params;
-  GaussianScene<Scalar> init = p.g1_from_gmed0 ? read_ply<Scalar>((fs::path(run.out) / "gmed0.ply").string())
+  GaussianScene<Scalar> init = p.g1_from_gmed0 ? run.read_scene((fs::path(run.out) / "gmed0.ply").string())
                                                : initial_scene(run, frames);
   TrainParams tp = run.train_params(p.iters_g1, deformable);
   tp.max_sh_degree = std::max(tp.max_sh_degree, init.sh_degree);
@@ -131,7 +131,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
   const auto& p = run.params;
   const fs::path out(run.out);
   bool reuse = false;
-  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", run.input->frame, &reuse);
   nlohmann::json settings = g1_detail::second_settings(run, g1_data_name(p.g1_data), p.g1_deformable);
   settings["arc_renders"] = p.g1_arc_renders;
   settings["reuse_r0"] = reuse;
@@ -144,15 +144,18 @@ void stage_g1(PipelineRun<Scalar>& run) {
   if (run.stage_current("g1", key, outputs)) return;
   GaussianScene<Scalar> final_scene;
   if (reuse) {
-    final_scene = read_ply<Scalar>((out / "gmed0.ply").string());
+    final_scene = run.read_scene((out / "gmed0.ply").string());
   } else {
     const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
     fs::create_directories(out / "g1");
     write_frame_list((out / "g1" / "frames.json").string(), frames);
     final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1");
   }
-  write_ply((out / "final.ply").string(), final_scene);
-  write_spz((out / "final.spz").string(), final_scene);
+  run.write_scene((out / "final.ply").string(), final_scene);
+  write_spz((out / "final.spz").string(), run.input->frame.to_user(final_scene.template cast<double>()));
+  if (run.input->frame.far_from_origin())
+    run.log("g1: warning: the model's origin is far from the scene, so final.spz (24-bit fixed-point positions) "
+            "holds it coarsely; final.ply keeps float64 positions");
   render_orbit_views(run, final_scene, "R1", "R1");
   finish_stage(run, "g1", key, t0, settings, outputs);
 }
@@ -166,7 +169,7 @@ void stage_g1_paper(PipelineRun<Scalar>& run) {
   const fs::path out(run.out);
   if (!p.compare_g1_paper) return;
   bool reuse = false;
-  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+  std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", run.input->frame, &reuse);
   if (reuse) return;  // no completion: G1 is Gmed0 whatever its data
   const nlohmann::json settings = g1_detail::second_settings(run, "paper", true);
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
@@ -178,7 +181,7 @@ void stage_g1_paper(PipelineRun<Scalar>& run) {
   write_frame_list((out / "g1_paper" / "frames.json").string(), frames);
   const GaussianScene<Scalar> scene =
       g1_detail::train_second(run, frames, true, (out / "g1_paper").string(), key, "G1 paper");
-  write_ply((out / "g1_paper" / "final.ply").string(), scene);
+  run.write_scene((out / "g1_paper" / "final.ply").string(), scene);
   finish_stage(run, "g1_paper", key, t0, settings, outputs);
 }
 
@@ -208,7 +211,7 @@ void stage_bound(PipelineRun<Scalar>& run) {
   bool same_as_g1 = false;
   if (!p.g1_arc_renders && p.g1_data == G1Data::source) {
     bool reuse = false;
-    std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", &reuse);
+    std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", run.input->frame, &reuse);
     same_as_g1 = !reuse && g1_detail::training_set_signature(g1_frames(run, std::move(vhat), p.g1_data)) ==
                                g1_detail::training_set_signature(frames);
   }
@@ -224,9 +227,9 @@ void stage_bound(PipelineRun<Scalar>& run) {
   write_frame_list((out / "bound" / "frames.json").string(), frames);
   if (same_as_g1) run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
   const GaussianScene<Scalar> scene =
-      same_as_g1 ? read_ply<Scalar>((out / "final.ply").string())
+      same_as_g1 ? run.read_scene((out / "final.ply").string())
                  : g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");
-  write_ply((out / "bound" / "bound.ply").string(), scene);
+  run.write_scene((out / "bound" / "bound.ply").string(), scene);
   finish_stage(run, "bound", key, t0, settings, outputs);
 }
 

@@ -68,7 +68,7 @@ void stage_orbit(PipelineRun<Scalar>& run) {
   run.keys["orbit"] = key;
   const std::vector<std::string> outputs = {"orbit.json"};
   if (run.stage_current("orbit", key, outputs)) return;
-  nlohmann::json oj = orbit_json(run.fit, run.layout);
+  nlohmann::json oj = orbit_json(run.fit, run.layout, in.frame);
   oj["source_frames"] = source_frames_json(in);
   oj["check"] = {{"ok", check.ok},
                  {"warnings", check.warnings},

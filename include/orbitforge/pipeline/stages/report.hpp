@@ -132,9 +132,9 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
       j["supported_heldout_at_reference"] = quality_of(run, scene, supported_heldout, true);
     return j;
   };
-  nlohmann::json quality = {{"R0", rows(read_ply<Scalar>((out / "gmed0.ply").string()))},
-                            {"R1", rows(read_ply<Scalar>((out / "final.ply").string()))}};
-  if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(read_ply<Scalar>((out / "g1_paper" / "final.ply").string()));
+  nlohmann::json quality = {{"R0", rows(run.read_scene((out / "gmed0.ply").string()))},
+                            {"R1", rows(run.read_scene((out / "final.ply").string()))}};
+  if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(run.read_scene((out / "g1_paper" / "final.ply").string()));
   if (run.keys.count("bound")) {
     // With G1 trained on exactly the oracle's set the bound is G1: its figures would only repeat R1's.
     const nlohmann::json rec = nlohmann::json::parse(read_file_bytes((out / "stages" / "bound.json").string()));
@@ -143,7 +143,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                           {"why", "G1 trained on the oracle's frames with the bound's settings: the bound is G1 by "
                                   "construction, not a separate measurement"}};
     else
-      quality["bound"] = rows(read_ply<Scalar>((out / "bound" / "bound.ply").string()));
+      quality["bound"] = rows(run.read_scene((out / "bound" / "bound.ply").string()));
   }
 
   // Pictures.
@@ -220,6 +220,11 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"orbit_check", orbit.value("check", nlohmann::json())},
                       {"quality", quality},
                       {"completion", completion}};
+  // The frame the run worked in; its files are in the model's own (run_state.hpp).
+  if (!in.frame.is_identity())
+    r["frame"] = {{"origin", {in.frame.origin[0], in.frame.origin[1], in.frame.origin[2]}},
+                  {"scale", in.frame.scale},
+                  {"files", in.frame.far_from_origin() ? "model frame, float64 positions" : "model frame"}};
   if (!p.invocation.empty())
     r["invocation"] = {{"command", p.invocation.command}, {"settings", p.invocation.settings}};
   if (p.deformable && p.static_proxy_diagnostics)

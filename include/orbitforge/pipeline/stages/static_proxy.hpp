@@ -38,7 +38,7 @@ void stage_static_proxy(PipelineRun<Scalar>& run) {
   if (!p.deformable || !p.static_proxy_diagnostics) return;
   const std::vector<std::string> outputs = {"static_proxy.json"};
   if (run.stage_current("static_proxy", key, outputs)) return;
-  const GaussianScene<Scalar> gmed0 = read_ply<Scalar>((out / "gmed0.ply").string());
+  const GaussianScene<Scalar> gmed0 = run.read_scene((out / "gmed0.ply").string());
   const std::vector<TrainFrame<Scalar>> frames = g0_frames(run);
   Trainer<Scalar> trainer(frames, gmed0, run.train_params(p.iters_g0, p.deformable));
   trainer.load_checkpoint((out / "g0" / "checkpoint.bin").string());
