@@ -1,8 +1,7 @@
 #pragma once
 // Gaussian Splatting training on the CPU, static (3DGS, Kerbl et al. 2023) and
 // deformable (Deformable 3D Gaussians, Yang et al. 2023): frames with per-frame
-// cameras and a time code t in [0, 1] -> a trained GaussianScene (+ a
-// DeformationField).
+// cameras and a time code t in [0, 1] -> a GaussianScene (+ a DeformationField).
 //
 //   std::vector<TrainFrame<float>> frames = ...;      // image [H][W][3] in [0, 1]
 //   Trainer<float> trainer(frames, init_from_points(xyz, rgb), params);
