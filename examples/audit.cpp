@@ -187,6 +187,9 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (inputs.empty()) throw cli::UsageError("audit: --inputs DIR... is required" + usage_hint);
+    if (flags.image_order == ImageOrder::ring && cameras == "estimated")
+      throw cli::UsageError("audit: --image-order ring goes with --cameras recorded (the estimated path chooses the "
+                            "source frames by name before COLMAP gives them cameras)");
     // CLI11 takes the word after a bare --inputs as its value, even a flag.
     for (const auto& dir : inputs)
       if (dir.rfind("-", 0) == 0) throw cli::UsageError("audit: --inputs needs at least one folder, got '" + dir + "'");

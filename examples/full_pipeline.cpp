@@ -83,6 +83,9 @@ void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames
         "--focal, --fov and --focal-search go with --video or --images alone (COLMAP)");
   usage(in.camera_model == "SIMPLE_PINHOLE" || in.camera_model == "PINHOLE",
         "--camera-model must be SIMPLE_PINHOLE or PINHOLE, got '" + in.camera_model + "'");
+  usage(flags.image_order == ImageOrder::name || !in.colmap.empty(),
+        "--image-order ring goes with --colmap (a video's or a folder's source frames are chosen by name before "
+        "COLMAP gives them cameras)");
   usage(!frames_set || in.recorded(), "--frames needs a recorded input (--video, --images, --colmap, ...)");
   const std::string& c = flags.params.completion;
   usage(!completion_set || !in.estimate_cameras() || !in.reference.empty() ||

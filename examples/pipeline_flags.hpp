@@ -33,6 +33,7 @@ struct PipelineFlags {
   std::string frames = "1-33";
   int width = 0, height = 0;  // 0 = the protocol's choice
   int holdout_every = 0;
+  ImageOrder image_order = ImageOrder::name;  // how a COLMAP folder's images are numbered
   std::string background_text;  // --background as given; empty: estimated from the frames
   // Resolved by end_pipeline_flags from background_text.
   std::optional<std::array<double, 3>> background;
@@ -71,6 +72,14 @@ inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
       ->group(kInputGroup);
   unset_when_zero(app.add_option("--height", f.height, "see --width"), f.height)
       ->transform(at_least(8))
+      ->group(kInputGroup);
+  app.add_option_function<std::string>(
+         "--image-order", [&f](const std::string& s) { f.image_order = parse_image_order(s); },
+         "how a COLMAP folder's images are numbered: name, or ring (around their cameras' ring, from one end of "
+         "its largest gap: photographs named in another order)")
+      ->default_function([&f] { return std::string(image_order_name(f.image_order)); })
+      ->capture_default_str()
+      ->check(checked_by([](const std::string& s) { parse_image_order(s); }, "name|ring"))
       ->group(kInputGroup);
   app.add_option("--holdout-every", f.holdout_every,
                  "withhold every K-th source frame from every reconstruction (0 = none)")
@@ -279,7 +288,7 @@ template <class Scalar>
 PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
                                           const PipelineFlags& f) {
   const auto size = working_size(f);
-  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size, /*normalise=*/true);
+  PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size, /*normalise=*/true, f.image_order);
   finish_recorded_input(program, input, f);
   return input;
 }

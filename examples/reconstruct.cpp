@@ -176,7 +176,7 @@ struct Dataset {
 // held out. Points: those at least two training frames observed.
 Dataset load(const Args& a) {
   const cli::PipelineFlags& f = a.shared;
-  PipelineInput<S> in = load_colmap_input<S>(a.colmap, f.frames, cli::working_size(f), /*normalise=*/true);
+  PipelineInput<S> in = load_colmap_input<S>(a.colmap, f.frames, cli::working_size(f), /*normalise=*/true, f.image_order);
   withhold_every(in, f.holdout_every);
   Dataset d;
   d.frame = in.frame;

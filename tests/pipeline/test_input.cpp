@@ -4,6 +4,8 @@
 // frames' borders.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -267,4 +269,101 @@ TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses t
   const auto report = nlohmann::json::parse(read_file_bytes((tmp.path / "run" / "report.json").string()));
   CHECK(report.at("frames").at("trained").size() == 30);
   CHECK(report.at("points").at("kept") == sp.kept);
+}
+
+namespace {
+
+// The angle (degrees) between two camera centres seen from the centres' centroid.
+template <class S>
+double centre_angle_deg(const Camera<S>& a, const Camera<S>& b, const Eigen::Matrix<S, 3, 1>& centroid) {
+  const Eigen::Vector3d u = (a.center() - centroid).template cast<double>().normalized();
+  const Eigen::Vector3d v = (b.center() - centroid).template cast<double>().normalized();
+  return std::acos(std::max(-1.0, std::min(1.0, u.dot(v)))) * 180.0 / 3.14159265358979;
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("ring_order: photographs named in any order come out around the ring, from one end",
+                   "[pipeline][input]", float, double) {
+  using S = TestType;
+  using Vec3 = Eigen::Matrix<S, 3, 1>;
+  // 10 cameras every 25 degrees (a 225-degree arc), 2 m up, looking at the origin.
+  const int n = 10;
+  auto camera_at = [](double az_deg) {
+    const double a = az_deg * 3.14159265358979 / 180;
+    FrameCamera<S> f;
+    f.valid = true;
+    f.camera = Camera<S>::look_at(Vec3(S(3 * std::cos(a)), S(3 * std::sin(a)), S(2)), Vec3::Zero(), Vec3::UnitZ(),
+                                  Intrinsics<S>{S(100), S(100), S(32), S(32), 64, 64});
+    return f;
+  };
+  const std::vector<int> name_to_ring = {0, 1, 6, 2, 3, 4, 5, 9, 8, 7};  // as a gantry's file numbering might go
+  std::vector<FrameCamera<S>> frames;
+  for (int i = 0; i < n; ++i) {
+    frames.push_back(camera_at(40 + 25.0 * name_to_ring[std::size_t(i)]));
+    frames.back().name = "f" + std::to_string(i);
+  }
+  FrameCamera<S> lost;  // a photograph the model did not register
+  lost.name = "lost";
+  lost.valid = false;
+  frames.insert(frames.begin() + 4, lost);
+
+  auto check_ring = [&](const std::vector<FrameCamera<S>>& fs_, const std::vector<std::size_t>& order, int dir) {
+    REQUIRE(order.size() == fs_.size());
+    CHECK(fs_[order.back()].name == "lost");  // unregistered frames last
+    const Vec3 ring_centre(0, 0, 2);
+    for (std::size_t k = 0; k + 2 < order.size(); ++k) {
+      CAPTURE(k);
+      // Every step is to a 25-degree neighbour, all in one direction.
+      const Vec3 ca = fs_[order[k]].camera.center(), cb = fs_[order[k + 1]].camera.center();
+      CHECK(double(ca.x() * cb.y() - ca.y() * cb.x()) * dir > 0);
+      CHECK(centre_angle_deg(fs_[order[k]].camera, fs_[order[k + 1]].camera, ring_centre) == Approx(25).margin(0.01));
+    }
+  };
+  // Name order turns counter-clockwise on the whole: so does the ring order,
+  // from the arc's first end (40 degrees).
+  const auto order = ring_order(frames);
+  check_ring(frames, order, +1);
+  CHECK(frames[order.front()].name == "f0");
+  // The same photographs named the other way round turn the other way.
+  const std::vector<FrameCamera<S>> reversed(frames.rbegin(), frames.rend());
+  const auto back = ring_order(reversed);
+  check_ring(reversed, back, -1);
+  CHECK(reversed[back.front()].name == "f7");  // ring position 9: the far end
+  // Too few cameras to fit a ring.
+  std::vector<FrameCamera<S>> two(frames.begin(), frames.begin() + 2);
+  CHECK_THROWS_WITH(ring_order(two), Catch::Contains("at least 3 registered cameras"));
+}
+
+TEST_CASE("load_colmap_input: --image-order ring numbers the temple's photographs around its ring",
+          "[pipeline][input][data]") {
+  using S = float;
+  if (!orbitforge_test::have_shared_data("middlebury/templeSparseRing")) return;
+  const std::string temple = orbitforge_test::shared_path("middlebury/templeSparseRing");
+  auto largest_step = [](const PipelineInput<S>& in) {
+    Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
+    int count = 0;
+    for (const auto& c : in.cameras)
+      if (c.valid) centroid += c.camera.center(), ++count;
+    centroid /= float(count);
+    double worst = 0;
+    for (std::size_t k = 0; k + 1 < in.cameras.size(); ++k)
+      if (in.cameras[k].valid && in.cameras[k + 1].valid)
+        worst = std::max(worst, centre_angle_deg(in.cameras[k].camera, in.cameras[k + 1].camera, centroid));
+    return worst;
+  };
+  const PipelineInput<S> by_name = load_colmap_input<S>(temple, "1-", WorkingSize::longer_side(32));
+  const PipelineInput<S> ring =
+      load_colmap_input<S>(temple, "1-", WorkingSize::longer_side(32), false, ImageOrder::ring);
+  REQUIRE(ring.cameras.size() == by_name.cameras.size());
+  CHECK(largest_step(by_name) > 90);  // the file numbering jumps across the ring
+  CHECK(largest_step(ring) < 40);     // 16 photographs around one ring
+  CHECK(ring.description.find("numbered around the ring") != std::string::npos);
+  // The same photographs, each with its own camera and image.
+  for (const auto& c : ring.cameras) {
+    const auto it = std::find_if(by_name.cameras.begin(), by_name.cameras.end(),
+                                 [&](const FrameCamera<S>& b) { return b.name == c.name; });
+    REQUIRE(it != by_name.cameras.end());
+    CHECK((it->camera.t - c.camera.t).norm() == 0);
+  }
 }

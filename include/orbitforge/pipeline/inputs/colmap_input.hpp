@@ -16,6 +16,7 @@
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/image_io.hpp"
+#include "orbitforge/pipeline/inputs/image_order.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/inputs/working_size.hpp"
 #include "orbitforge/splat/scene_frame.hpp"
@@ -31,9 +32,12 @@ namespace orbitforge {
 // longer side takes the aspect of the first registered camera.
 // normalise: cameras and points are moved, in double, into the frame fitted to
 // the registered cameras (fit_scene_frame), recorded in `frame`; else as recorded.
+// order: ImageOrder::ring numbers the frames around their cameras' ring instead of
+// by name (image_order.hpp).
 template <class Scalar>
 PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::string& source_range,
-                                        const WorkingSize& size, bool normalise = false) {
+                                        const WorkingSize& size, bool normalise = false,
+                                        ImageOrder order = ImageOrder::name) {
   namespace fs = std::filesystem;
   size.check("load_colmap_input");
   const bool native = size.is_native();
@@ -44,7 +48,12 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
   const fs::path images(images_dir);
   // Every frame in double; the normalised frame is fitted and applied before the
   // cast, so a model far from the origin or at any scale keeps its precision.
-  const std::vector<FrameCamera<double>> frames_d = colmap_video_frames<double>(model, images_dir);
+  std::vector<FrameCamera<double>> frames_d = colmap_video_frames<double>(model, images_dir);
+  if (order == ImageOrder::ring) {
+    std::vector<FrameCamera<double>> ring;
+    for (std::size_t i : ring_order(frames_d)) ring.push_back(frames_d[i]);
+    frames_d = std::move(ring);
+  }
   SceneFrame frame;
   if (normalise) {
     std::vector<Eigen::Vector3d> centres;
@@ -118,7 +127,8 @@ PipelineInput<Scalar> load_colmap_input(const std::string& dir, const std::strin
     }
     in.point_frames.push_back(std::move(frames));
   }
-  in.description = "colmap " + dir + " frames " + (source_range.empty() ? std::string("all") : source_range);
+  in.description = "colmap " + dir + " frames " + (source_range.empty() ? std::string("all") : source_range) +
+                   (order == ImageOrder::ring ? " (numbered around the ring)" : "");
   in.camera_path = "recorded model (a lab figure when its maker estimated it with frames outside the source)";
   return in;
 }
