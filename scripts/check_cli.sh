@@ -35,6 +35,9 @@ ms=$(( ($(date +%s%N) - start) / 1000000 ))
 (( ms < 1000 )) || fail "--views 100000000 took $ms ms to refuse"
 expect_refusal 2 "--views" "$bin/full_pipeline" --views 100000000 --out "$work/run"
 expect_refusal 2 "--init-points" "$bin/full_pipeline" --init-points 20000000 --out "$work/run"
+expect_refusal 2 "--image-order" "$bin/full_pipeline" --image-order spiral --out "$work/run"
+expect_refusal 2 "--image-order ring goes with --colmap" "$bin/full_pipeline" --images "$work" --image-order ring \
+  --out "$work/run"
 expect_refusal 2 "--frames" "$bin/fit_orbit" --synthetic --frames '' --out "$work/o.json"
 [[ ! -e "$work/o.json" ]] || fail "a refused fit_orbit left orbit.json"
 # An unknown flag and a flag missing its value: status 2, the flag named.
