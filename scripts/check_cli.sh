@@ -106,7 +106,8 @@ def load(run, name): return json.load(open(f"{w}/{run}/{name}"))
 def settings(run): return [l for l in open(f"{w}/{run}/settings.toml") if not l.startswith("out=")]
 a, b = load("p1", "report.json"), load("p2", "report.json")
 s = a["settings"]
-assert (s["iters_g0"], s["iters_g1"], s["views"], s["width"], s["median_samples"], s["init_points"]) == (4, 4, 9, 32, 2, 300), s
+assert (s["iters_g0"], s["iters_g1"], s["views"], s["width"], s["median_samples"]) == (4, 4, 9, 32, 2), s
+assert "init-points=300" in open(f"{w}/p2/settings.toml").read().split("\n"), "the replay lost --init-points"
 for key in ("settings", "prompt", "background", "frames", "completion_provider"):
     assert a[key] == b[key], (key, a[key], b[key])
 assert "--prompt 'a '\\''quoted'\\'' prompt'" in a["invocation"]["command"], a["invocation"]["command"]
