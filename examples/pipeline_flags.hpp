@@ -101,10 +101,14 @@ inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
   app.add_option("--seed", p.seed, "random seed")->transform(at_least(0))->group(kTrainingGroup);
   app.add_option("--still-check", p.train.still_check_iterations,
                  "N iterations after the warm-up, bake the field in and train static when it fits the frames less "
-                 "than --still-gain dB better than its bake (0 = off)")
+                 "than --still-gain dB better than its bake, and no image region more than --still-region-gain dB "
+                 "(0 = off)")
       ->transform(at_least(0))
       ->group(kSkipGroup);
   app.add_option("--still-gain", p.train.still_gain_db, "see --still-check (dB)")->check(finite())->group(kSkipGroup);
+  app.add_option("--still-region-gain", p.train.still_region_gain_db, "see --still-check (dB)")
+      ->check(finite())
+      ->group(kSkipGroup);
   app.add_option("--plateau-window", p.train.plateau_window,
                  "stop when the mean loss over N iterations (whole passes) improves by less than "
                  "--plateau-tolerance after densification (0 = off)")

@@ -42,6 +42,7 @@
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/metrics/image.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
+#include "orbitforge/pipeline/training_record.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 #include "cli.hpp"
@@ -260,6 +261,7 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.coarse_fraction = levers.coarse_fraction;
   p.still_check_iterations = levers.still_check_iterations;
   p.still_gain_db = levers.still_gain_db;
+  p.still_region_gain_db = levers.still_region_gain_db;
   p.plateau_window = levers.plateau_window;
   p.plateau_tolerance = levers.plateau_tolerance;
   p.densify_params.max_gaussians = levers.densify_params.max_gaussians;
@@ -290,12 +292,9 @@ int run(const Args& a, const RunInvocation& invocation) {
     if (!pr.warning.empty()) std::fprintf(stderr, "reconstruct: warning: %s\n", pr.warning.c_str());
     train_seconds = pr.elapsed_seconds;
     const ShortcutState& sc = pr.shortcuts;
-    if (sc.still_checked && !shortcuts.contains("field_gain_db")) {
-      shortcuts["field_gain_db"] = sc.field_gain_db;
-      shortcuts["field_baked"] = sc.field_baked;
-      shortcuts["still_check_at"] = pr.iteration;
-      std::fprintf(stderr, "reconstruct: the field fits the frames %.3f dB better than its bake: %s\n",
-                   sc.field_gain_db, sc.field_baked ? "baked in, training static" : "training deformable");
+    if (sc.still_checked && !shortcuts.contains("still_check")) {
+      shortcuts["still_check"] = still_check_json(sc, p, pr.iteration);
+      std::fprintf(stderr, "reconstruct: %s\n", still_verdict_text(sc).c_str());
     }
     if (sc.plateau_last > 0 && (shortcuts["plateau"].empty() || shortcuts["plateau"].back()[1] != sc.plateau_last))
       shortcuts["plateau"].push_back({pr.iteration, sc.plateau_last});

@@ -4,8 +4,11 @@
 # the uncovered border filled white (the recorded videos' background); the
 # cameras (sparse/0) are kept. The scene then moves along a small circle that
 # no static model can explain, which gives the still check a known positive.
+# With PART=part only the box x in [W/4, 3W/4), y in [H/4, H/2) moves (an eighth
+# of the frame, the upper middle where the object's top is), the rest stays: a
+# part of the object moving, which a whole-image mean dilutes.
 #
-#   scripts/make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES
+#   scripts/make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES [part]
 #
 # e.g. scripts/make_moving_video.sh ../shared/data/v3d/doll out/moving/doll 4 16
 set -euo pipefail
@@ -13,6 +16,8 @@ src=${1:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
 dst=${2:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
 amp=${3:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
 period=${4:?usage: make_moving_video.sh SRC_DIR DST_DIR AMPLITUDE_PX PERIOD_FRAMES}
+part=${5:-}
+[[ -z $part || $part == part ]] || { echo "make_moving_video: the fifth argument is 'part' or nothing, got $part" >&2; exit 1; }
 [[ -d $src/images && -d $src/sparse/0 ]] || { echo "make_moving_video: $src has no images/ and sparse/0" >&2; exit 1; }
 [[ $amp =~ ^[0-9]+$ && $amp -ge 1 ]] || { echo "make_moving_video: amplitude must be a whole number of pixels >= 1, got $amp" >&2; exit 1; }
 [[ $period =~ ^[0-9]+$ && $period -ge 2 ]] || { echo "make_moving_video: period must be a whole number of frames >= 2, got $period" >&2; exit 1; }
@@ -25,9 +30,14 @@ rm -rf "$dst"
 mkdir -p "$dst/images" "$dst/sparse"
 cp -r "$src/sparse/0" "$dst/sparse/0"
 a=$amp
+shift_frame="pad=iw+2*$a:ih+2*$a:$a:$a:white,crop=iw-2*$a:ih-2*$a:$a+$a*sin(2*PI*n/$period):$a+$a*cos(2*PI*n/$period)"
+if [[ -n $part ]]; then
+  filter="format=rgb24,split[base][moved];[moved]$shift_frame,crop=iw/2:ih/4:iw/4:ih/4[box];[base][box]overlay=W/4:H/4:format=rgb"
+else
+  filter=$shift_frame
+fi
 ffmpeg -loglevel error -start_number "$start" -i "$src/images/%0${digits}d.jpg" \
-  -vf "pad=iw+2*$a:ih+2*$a:$a:$a:white,crop=iw-2*$a:ih-2*$a:$a+$a*sin(2*PI*n/$period):$a+$a*cos(2*PI*n/$period)" \
-  -q:v 2 -start_number "$start" "$dst/images/%0${digits}d.jpg"
+  -filter_complex "$filter" -q:v 2 -start_number "$start" "$dst/images/%0${digits}d.jpg"
 [[ $(ls "$dst/images" | wc -l) == $(ls "$src/images" | wc -l) ]] ||
   { echo "make_moving_video: wrote $(ls "$dst/images" | wc -l) frames of $(ls "$src/images" | wc -l)" >&2; exit 1; }
-echo "make_moving_video: $dst (shift up to $amp px, period $period frames)"
+echo "make_moving_video: $dst (shift up to $amp px, period $period frames${part:+, the upper middle box only})"

@@ -81,6 +81,8 @@ TEST_CASE("checkpoint records keep the still-scene and plateau state", "[io][che
   c.shortcuts.field_baked = true;  // baked: no field follows
   c.field.reset();
   c.shortcuts.field_gain_db = 0.03;
+  c.shortcuts.field_region_gain_db = 0.71;
+  c.shortcuts.field_region = 21;
   c.shortcuts.plateau_sum = 1.5;
   c.shortcuts.plateau_previous = 0.25;
   c.shortcuts.plateau_last = 0.24;
@@ -93,6 +95,8 @@ TEST_CASE("checkpoint records keep the still-scene and plateau state", "[io][che
   REQUIRE(r.shortcuts.field_baked);
   REQUIRE_FALSE(r.field);
   REQUIRE(r.shortcuts.field_gain_db == 0.03);
+  REQUIRE(r.shortcuts.field_region_gain_db == 0.71);
+  REQUIRE(r.shortcuts.field_region == 21);
   REQUIRE(r.shortcuts.plateau_previous == 0.25);
   REQUIRE(r.shortcuts.plateau_last == 0.24);
   REQUIRE(r.shortcuts.stopped);

@@ -198,6 +198,14 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
   for (const char* s : {"g1_paper", "bound"}) CHECK(r.at("comparison_seconds").at(s).get<double>() > 0);
   CHECK(r.at("background").at("color") == nlohmann::json::array({0, 0, 0}));  // the synthetic frames' black borders
   REQUIRE(r.at("completion").contains("loop_endpoint_l1"));
+  // What each reconstruction's levers decided: the still check is off by default.
+  for (const char* s : {"g0", "g1", "g1_paper", "bound"}) {
+    INFO(s);
+    REQUIRE(r.at("training").contains(s));
+    CHECK(r["training"][s].at("iterations").get<int>() == tiny_params().iters_g0);
+    CHECK(r["training"][s].at("still_check").is_null());
+    CHECK_FALSE(r["training"][s].at("plateau_stopped").get<bool>());
+  }
   REQUIRE(r.at("completion").contains("temporal_trace"));
   REQUIRE(r.at("completion").contains("anchor_index_error"));
   CHECK(r["completion"]["anchor_index_error"]["max"].get<double>() == 0);
@@ -503,10 +511,38 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
   PipelineRun<float> state;
   const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
   CHECK(state.skipped == std::vector<std::string>{"orbit", "g0", "static_proxy"});
+  CHECK(r.at("training").contains("g0"));
+  CHECK_FALSE(r["training"].contains("g1"));  // G1 did not train: the oracle run's record is not reported
   CHECK(r["coverage"]["R1"]["A"] == r["coverage"]["R0"]["A"]);
   CHECK(read_file_bytes((dir / "final.ply").string()) == read_file_bytes((dir / "gmed0.ply").string()));
   CHECK(r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>() ==
         Approx(r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>()));
+}
+
+TEST_CASE("pipeline: the still check's figures and decision are in report.json", "[pipeline][levers]") {
+  const fs::path dir = scratch().root / "still_check";
+  PipelineParams p = tiny_params();
+  p.completion = "none";
+  p.static_proxy_diagnostics = false;
+  p.train.still_check_iterations = p.iters_g0 / 4;
+  PipelineRun<float> state;
+  const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
+  const nlohmann::json& c = r.at("training").at("g0").at("still_check");
+  REQUIRE(c.is_object());
+  const TrainParams defaults;
+  CHECK(c.at("thresholds_db").at("gain").get<double>() == defaults.still_gain_db);
+  CHECK(c.at("thresholds_db").at("region_gain").get<double>() == defaults.still_region_gain_db);
+  const double gain = c.at("gain_db").get<double>(), region = c.at("region_gain_db").get<double>();
+  CHECK(std::isfinite(gain));
+  CHECK(std::isfinite(region));
+  const bool bake = gain < defaults.still_gain_db && region < defaults.still_region_gain_db;
+  CHECK(c.at("decision").get<std::string>() == (bake ? "baked" : "kept"));
+  CHECK(c.at("region").size() == 2);
+  CHECK(c.at("iteration").get<int>() > p.train.still_check_iterations);
+  // The stage's file says the same, and a second run reads it back unchanged.
+  CHECK(parse_file(dir / "g0" / "training.json").at("still_check") == c);
+  const auto again = run_pipeline(tiny_input_data(), p, dir.string());
+  CHECK(again.at("training").at("g0") == r.at("training").at("g0"));
 }
 
 // The paper's protocol on a square source: the canonical views are wider than

@@ -212,6 +212,44 @@ TEMPLATE_TEST_CASE("still check: the iteration it runs at, and the PSNR it compa
   CHECK(fit_psnr(a, b) == 100.0);
 }
 
+TEMPLATE_TEST_CASE("still check: the region figure finds a change the whole-image mean dilutes", "[train][parts]", float,
+                   double) {
+  // 64x64 frames, regions of 8x8 pixels: the deformed render is off by 0.05
+  // everywhere, the bake by 0.2 in regions (2, 5) and (2, 6) and 0.05 elsewhere.
+  Image<TestType> frame(64, 64, 3), deformed(64, 64, 3), baked(64, 64, 3);
+  for (int y = 0; y < 64; ++y)
+    for (int x = 0; x < 64; ++x)
+      for (int c = 0; c < 3; ++c) {
+        const TestType v = TestType(0.25 + 0.5 * ((x + y + c) % 2));
+        frame(x, y, c) = v;
+        deformed(x, y, c) = v + TestType(0.05);
+        baked(x, y, c) = v + TestType(y / 8 == 2 && (x / 8 == 5 || x / 8 == 6) ? 0.2 : 0.05);
+      }
+  RegionErrors rd, rb;
+  rd.add(deformed, frame);
+  rb.add(baked, frame);
+  const double expected = 10 * std::log10((0.04 + kStillRegionFloor) / (2.5e-3 + kStillRegionFloor));
+  int first = -1, second = -1, third = -1;
+  CHECK(region_gain_db(rd, rb, 1, &first) == Approx(expected).epsilon(1e-4));
+  CHECK(region_gain_db(rd, rb, 2, &second) == Approx(expected).epsilon(1e-4));
+  CHECK(std::abs(region_gain_db(rd, rb, 3, &third)) < 1e-4);  // the other regions gain nothing
+  CHECK(first == 2 * kStillRegions + 5);  // equal gains: the lower region first
+  CHECK(second == 2 * kStillRegions + 6);
+  const double whole = fit_psnr(deformed, frame) - fit_psnr(baked, frame);
+  CHECK(whole < 2.0);  // 2 of 64 regions: the mean gains under 2 dB, the regions 11.9 dB
+  CHECK(expected > 10.0);
+  // Renders are clamped to [0, 1] as fit_psnr's; regions both fit to far below the
+  // floor score about 0, not the ratio of two tiny errors.
+  RegionErrors exact, near;
+  exact.add(frame, frame);
+  Image<TestType> off = frame;
+  for (auto& v : off.data) v += TestType(1e-3);
+  near.add(off, frame);
+  CHECK(std::abs(region_gain_db(exact, near, 1)) < 0.05);
+  CHECK_THROWS_AS(rd.add(Image<TestType>(8, 8, 3), frame), Error);
+  CHECK_THROWS_AS(region_gain_db(rd, rb, 0), Error);
+}
+
 TEMPLATE_TEST_CASE("densify driver: opacity resets zero the opacities' moments; off does nothing", "[train][parts]",
                    float, double) {
   TrainParams p;

@@ -46,6 +46,8 @@ struct ShortcutState {
   bool still_checked = false;
   bool field_baked = false;  // the field was baked into the scene; training went on static
   double field_gain_db = 0;  // the deformed model's PSNR over its bake's on training frames
+  double field_region_gain_db = 0;  // the same per image region, at the check's rank (still_check.hpp)
+  std::int32_t field_region = 0;    // that region, row-major
   double plateau_sum = 0;    // the loss summed over the current window
   double plateau_previous = 0, plateau_last = 0;  // the last two windows' mean losses (0 before they exist)
   bool stopped = false;      // training ended on a plateau, before its budget
@@ -74,7 +76,7 @@ struct TrainingCheckpoint {
 };
 
 namespace checkpoint_detail {
-inline constexpr char kTag[9] = "OFTRAIN2";
+inline constexpr char kTag[9] = "OFTRAIN3";
 }
 
 template <class Scalar>
@@ -94,6 +96,8 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   write<std::uint8_t>(os, c.shortcuts.still_checked ? 1 : 0);
   write<std::uint8_t>(os, c.shortcuts.field_baked ? 1 : 0);
   write(os, c.shortcuts.field_gain_db);
+  write(os, c.shortcuts.field_region_gain_db);
+  write<std::int32_t>(os, c.shortcuts.field_region);
   write(os, c.shortcuts.plateau_sum);
   write(os, c.shortcuts.plateau_previous);
   write(os, c.shortcuts.plateau_last);
@@ -137,14 +141,18 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
   c.shortcuts.still_checked = read<std::uint8_t>(is, "still checked") != 0;
   c.shortcuts.field_baked = read<std::uint8_t>(is, "field baked") != 0;
   c.shortcuts.field_gain_db = read<double>(is, "field gain");
+  c.shortcuts.field_region_gain_db = read<double>(is, "field region gain");
+  c.shortcuts.field_region = read<std::int32_t>(is, "field region");
   c.shortcuts.plateau_sum = read<double>(is, "plateau sum");
   c.shortcuts.plateau_previous = read<double>(is, "plateau previous");
   c.shortcuts.plateau_last = read<double>(is, "plateau last");
   c.shortcuts.stopped = read<std::uint8_t>(is, "stopped") != 0;
   ensure(!c.shortcuts.field_baked || c.deformable, "checkpoint: a static model with a baked field");
   const ShortcutState& sc = c.shortcuts;
-  for (double v : {sc.field_gain_db, sc.plateau_sum, sc.plateau_previous, sc.plateau_last})
+  for (double v : {sc.field_gain_db, sc.field_region_gain_db, sc.plateau_sum, sc.plateau_previous, sc.plateau_last})
     ensure(std::isfinite(v), "checkpoint: non-finite still-scene or plateau state");
+  ensure(sc.field_region >= 0 && sc.field_region < 1024, "checkpoint: still-scene region ", sc.field_region,
+         " out of range");
   GaussianScene<Scalar>& s = c.scene;
   s.sh_degree = read<std::int32_t>(is, "SH degree");
   s.means = read_array<Scalar>(is, "means");

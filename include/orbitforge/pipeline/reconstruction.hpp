@@ -22,6 +22,7 @@
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
+#include "orbitforge/pipeline/training_record.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
@@ -63,8 +64,9 @@ bool try_resume(Trainer<Scalar>& trainer, const std::string& file, const std::st
 }  // namespace reconstruction_detail
 
 // Trains `frames` from `init` (resuming when it can), saves dir/checkpoint.bin
-// and returns the MedianGS bake (the trained scene itself for static training,
-// or when training ended within the deformation warm-up).
+// and dir/training.json (training_record.hpp), and returns the MedianGS bake
+// (the trained scene itself for static training, or when training ended within
+// the deformation warm-up).
 template <class Scalar>
 GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames,
                                            GaussianScene<Scalar> init, const TrainParams& tp, const std::string& dir,
@@ -93,12 +95,7 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
               " Gaussians; the most opaque stay and training goes on (a background the frames do not share "
               "drives every opacity down; check --background)");
     }
-    if (pr.iteration == trainer.still_check_iteration()) {
-      char m[160];
-      std::snprintf(m, sizeof(m), "%s: the field fits the frames %.3f dB better than its bake: %s", label.c_str(),
-                    sc.field_gain_db, sc.field_baked ? "baked in, training static" : "training deformable");
-      run.log(m);
-    }
+    if (pr.iteration == trainer.still_check_iteration()) run.log(label + ": " + still_verdict_text(sc));
     if (sc.stopped)
       run.log(label + ": loss plateaued, training stopped at iteration " + std::to_string(pr.iteration) + " of " +
               std::to_string(tp.iterations));
@@ -115,6 +112,9 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
     trainer.save_checkpoint(final_ckpt);
     write_file_atomic(final_ckpt + ".key", key);
   }
+  write_file_atomic((fs::path(dir) / "training.json").string(),
+                    training_json(trainer.shortcuts(), tp, trainer.still_check_iteration(), trainer.iteration()).dump(1) +
+                        "\n");
   std::error_code ec;
   fs::remove(partial, ec);
   fs::remove(partial + ".key", ec);

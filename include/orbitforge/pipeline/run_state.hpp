@@ -96,6 +96,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
     if (t.still_check_iterations > 0)
       j["still_check"] = {{"iterations", t.still_check_iterations},
                           {"gain_db", t.still_gain_db},
+                          {"region_gain_db", t.still_region_gain_db},
                           {"bake_samples", t.still_bake_samples}};
   }
   if (t.coarse_levels > 0) j["coarse"] = {{"levels", t.coarse_levels}, {"fraction", t.coarse_fraction}};

@@ -118,8 +118,9 @@ class Trainer {
   bool deforming_at(int it) const { return s_.field && it > schedule_.warmup; }
   // The budget is used up, or the plateau stop ended training.
   bool finished() const { return s_.shortcuts.stopped || s_.iteration >= params_.iterations; }
-  // The still-scene check baked the field into the scene; training went on static.
-  bool field_baked() const { return s_.shortcuts.field_baked; }
+  // What the still-scene check and the plateau stop decided (kept in checkpoints).
+  const ShortcutState& shortcuts() const { return s_.shortcuts; }
+  bool field_baked() const { return s_.shortcuts.field_baked; }  // the field was baked in; training went on static
   // The iteration at whose end the still-scene check runs (0: it does not).
   int still_check_iteration() const { return orbitforge::still_check_iteration(params_, schedule_.warmup); }
   // The image level iteration `it` trains at (coarse_to_fine.hpp; full size up to the still-scene check).
@@ -271,8 +272,7 @@ class Trainer {
     StillVerdict<Scalar> v = check_still_scene(
         s_.scene, *s_.field, frames_, renderer_, params_,
         [this](const Camera<Scalar>& camera, Scalar time) -> const Image<Scalar>& { return render(camera, time); });
-    s_.shortcuts.still_checked = true;
-    s_.shortcuts.field_gain_db = v.gain_db;
+    record_still_verdict(v, s_.shortcuts);
     if (!v.bake) return;
     s_.scene = std::move(v.baked);
     s_.field.reset();

@@ -46,7 +46,7 @@ void stage_g0(PipelineRun<Scalar>& run) {
                                    {"threads", p.threads}};
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("orbit"))));
   run.keys["g0"] = key;
-  std::vector<std::string> outputs = {"g0/frames.json", "g0/checkpoint.bin", "gmed0.ply"};
+  std::vector<std::string> outputs = {"g0/frames.json", "g0/checkpoint.bin", "g0/training.json", "gmed0.ply"};
   for (const auto& f : orbit_view_files(run, "R0")) outputs.push_back(f);
   if (run.stage_current("g0", key, outputs)) return;
   const std::vector<TrainFrame<Scalar>> frames = g0_frames(run);

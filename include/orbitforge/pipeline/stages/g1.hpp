@@ -139,11 +139,13 @@ void stage_g1(PipelineRun<Scalar>& run) {
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
   run.keys["g1"] = key;
   std::vector<std::string> outputs = {"final.ply", "final.spz"};
-  if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/frames.json"});
+  if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/training.json", "g1/frames.json"});
   for (const auto& f : orbit_view_files(run, "R1")) outputs.push_back(f);
   if (run.stage_current("g1", key, outputs)) return;
   GaussianScene<Scalar> final_scene;
   if (reuse) {
+    std::error_code ec;
+    fs::remove(out / "g1" / "training.json", ec);  // an earlier run's: G1 does not train here
     final_scene = run.read_scene((out / "gmed0.ply").string());
   } else {
     const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
@@ -174,7 +176,8 @@ void stage_g1_paper(PipelineRun<Scalar>& run) {
   const nlohmann::json settings = g1_detail::second_settings(run, "paper", true);
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
   run.keys["g1_paper"] = key;
-  const std::vector<std::string> outputs = {"g1_paper/checkpoint.bin", "g1_paper/frames.json", "g1_paper/final.ply"};
+  const std::vector<std::string> outputs = {"g1_paper/checkpoint.bin", "g1_paper/training.json", "g1_paper/frames.json",
+                                            "g1_paper/final.ply"};
   if (run.stage_current("g1_paper", key, outputs)) return;
   const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), G1Data::paper);
   fs::create_directories(out / "g1_paper");
@@ -221,11 +224,15 @@ void stage_bound(PipelineRun<Scalar>& run) {
       hex64(fnv1a(settings.dump(), fnv1a(same_as_g1 ? run.keys.at("g1") : run.keys.at("g0"))));
   run.keys["bound"] = key;
   std::vector<std::string> outputs = {"bound/frames.json", "bound/bound.ply"};
-  if (!same_as_g1) outputs.insert(outputs.begin(), "bound/checkpoint.bin");
+  if (!same_as_g1) outputs.insert(outputs.begin(), {"bound/checkpoint.bin", "bound/training.json"});
   if (run.stage_current("bound", key, outputs)) return;
   fs::create_directories(out / "bound");
   write_frame_list((out / "bound" / "frames.json").string(), frames);
-  if (same_as_g1) run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
+  if (same_as_g1) {
+    run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
+    std::error_code ec;
+    fs::remove(out / "bound" / "training.json", ec);  // an earlier run's: the bound does not train here
+  }
   const GaussianScene<Scalar> scene =
       same_as_g1 ? run.read_scene((out / "final.ply").string())
                  : g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");

@@ -227,6 +227,12 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                   {"files", in.frame.far_from_origin() ? "model frame, float64 positions" : "model frame"}};
   if (!p.invocation.empty())
     r["invocation"] = {{"command", p.invocation.command}, {"settings", p.invocation.settings}};
+  // What each reconstruction's levers decided (training_record.hpp).
+  nlohmann::json training = nlohmann::json::object();
+  for (const char* s : {"g0", "g1", "g1_paper", "bound"})
+    if (run.keys.count(s) && fs::exists(out / s / "training.json"))
+      training[s] = nlohmann::json::parse(read_file_bytes((out / s / "training.json").string()));
+  r["training"] = training;
   if (p.deformable && p.static_proxy_diagnostics)
     r["static_proxy"] = nlohmann::json::parse(read_file_bytes((out / "static_proxy.json").string()));
   write_file_atomic((out / "report.json").string(), r.dump(1) + "\n");
