@@ -162,13 +162,14 @@ StillVerdict<Scalar> check_still_scene(const GaussianScene<Scalar>& scene, const
 }
 
 // The verdict as a log line: "the field fits the frames G dB better than its bake
-// (R dB in its region of rank 1, (row, column) of 8 x 8): baked in, training static".
+// (R dB in its best region, (row, column) of 8 x 8): baked in, training static".
 inline std::string still_verdict_text(const ShortcutState& sc) {
   char m[200];
   std::snprintf(m, sizeof(m),
-                "the field fits the frames %.3f dB better than its bake (%.3f dB in its region of rank %d, (%d, %d) of "
-                "%d x %d): %s",
-                sc.field_gain_db, sc.field_region_gain_db, kStillRegionRank, sc.field_region / kStillRegions,
+                "the field fits the frames %.3f dB better than its bake (%.3f dB in its %s region, (%d, %d) of %d x "
+                "%d): %s",
+                sc.field_gain_db, sc.field_region_gain_db, kStillRegionRank == 1 ? "best" : "ranked",
+                sc.field_region / kStillRegions,
                 sc.field_region % kStillRegions, kStillRegions, kStillRegions,
                 sc.field_baked ? "baked in, training static" : "training deformable");
   return m;
