@@ -399,10 +399,10 @@ TEST_CASE("checkpoint streams: damaged structure is refused, not loaded", "[trai
   t.save_checkpoint(os);
   const std::string good = os.str();
   // Layout (trainer.hpp save_checkpoint): tag 8 + scalar size 4, iteration 4, budget 4,
-  // frames 8, seed 4, mode 1, extent, elapsed 8, still-scene and plateau state 35
-  // (u8, u8, 4 x f64, u8), SH degree 4, then the scene's arrays (u64 count + values)
-  // and the optimizer.
-  const std::size_t extent_at = 12 + 4 + 4 + 8 + 4 + 1, means_at = extent_at + sizeof(S) + 8 + 35 + 4;
+  // frames 8, seed 4, mode 1, extent, elapsed 8, still-scene and plateau state 47
+  // (u8, u8, 2 x f64, i32, 3 x f64, u8), SH degree 4, then the scene's arrays (u64
+  // count + values) and the optimizer.
+  const std::size_t extent_at = 12 + 4 + 4 + 8 + 4 + 1, means_at = extent_at + sizeof(S) + 8 + 47 + 4;
   const GaussianScene<S>& s = t.scene();
   std::size_t adam_at = means_at;
   for (std::size_t count : {s.means.size(), s.rotations.size(), s.log_scales.size(), s.opacity_logits.size(),
