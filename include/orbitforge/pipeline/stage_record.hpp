@@ -157,4 +157,17 @@ inline double recorded_seconds(const std::string& out, const std::string& stage)
   return j.value("seconds", 0.0);
 }
 
+// Whether `stage`'s record lists `relative` among its outputs (so the file is the
+// one that stage wrote, not a leftover of an earlier run with other settings).
+inline bool recorded_output(const std::string& out, const std::string& stage, const std::string& relative) {
+  using namespace stage_record_detail;
+  const std::string p = record_path(out, stage).string();
+  std::error_code ec;
+  if (!fs::exists(p, ec)) return false;
+  const nlohmann::json record = parse_stage_record(read_file_bytes(p), p);
+  for (const auto& o : record["outputs"])
+    if (o["path"] == relative) return true;
+  return false;
+}
+
 }  // namespace orbitforge

@@ -54,18 +54,6 @@ inline int still_check_iteration(const TrainParams& p, int warmup) {
   return p.deformable && p.still_check_iterations > 0 ? warmup + p.still_check_iterations : 0;
 }
 
-// PSNR of a render (clamped to [0, 1]) against a frame.
-template <class Scalar>
-double fit_psnr(const Image<Scalar>& render, const Image<Scalar>& frame) {
-  double se = 0;
-  for (std::size_t i = 0; i < render.data.size(); ++i) {
-    const double d = std::min(1.0, std::max(0.0, double(render.data[i]))) - double(frame.data[i]);
-    se += d * d;
-  }
-  const double mse = se / double(std::max<std::size_t>(1, render.data.size()));
-  return mse > 0 ? -10.0 * std::log10(mse) : 100.0;
-}
-
 inline constexpr int kStillRegions = 8;
 inline constexpr int kStillRegionRank = 1;
 inline constexpr double kStillRegionFloor = 1e-4;  // a mean squared error of 40 dB
@@ -98,11 +86,31 @@ class RegionErrors {
     const std::size_t r = std::size_t(region);
     return count_[r] ? sse_[r] / double(count_[r]) : 0.0;
   }
+  // Over the whole image, as PSNR (100 for an exact fit).
+  double psnr() const {
+    double se = 0;
+    std::size_t n = 0;
+    for (std::size_t r = 0; r < sse_.size(); ++r) se += sse_[r], n += count_[r];
+    const double m = se / double(std::max<std::size_t>(1, n));
+    return m > 0 ? -10.0 * std::log10(m) : 100.0;
+  }
+  RegionErrors& operator+=(const RegionErrors& o) {
+    for (std::size_t r = 0; r < sse_.size(); ++r) sse_[r] += o.sse_[r], count_[r] += o.count_[r];
+    return *this;
+  }
 
  private:
   std::array<double, kStillRegions * kStillRegions> sse_{};
   std::array<std::size_t, kStillRegions * kStillRegions> count_{};
 };
+
+// PSNR of a render (clamped to [0, 1]) against a frame.
+template <class Scalar>
+double fit_psnr(const Image<Scalar>& render, const Image<Scalar>& frame) {
+  RegionErrors e;
+  e.add(render, frame);
+  return e.psnr();
+}
 
 // How much better `deformed` fits each region than `baked`, in dB, floored as the
 // header says; returns the rank-th largest (1: the largest) and stores its region.
@@ -148,13 +156,12 @@ StillVerdict<Scalar> check_still_scene(const GaussianScene<Scalar>& scene, const
   RegionErrors deformed_regions, baked_regions;
   for (std::size_t j = 0; j < k; ++j) {
     const TrainFrame<Scalar>& f = frames[j * frames.size() / k];
-    const Image<Scalar>& deformed_render = render_deformed(f.camera, f.time);
-    const double deformed = fit_psnr(deformed_render, f.image);
-    deformed_regions.add(deformed_render, f.image);
-    const Image<Scalar>& baked_render = renderer.render(SceneView<Scalar>(v.baked), f.camera).color;
-    const double baked = fit_psnr(baked_render, f.image);
-    baked_regions.add(baked_render, f.image);
-    v.gain_db += (deformed - baked) / double(k);
+    RegionErrors deformed, baked;  // this frame's
+    deformed.add(render_deformed(f.camera, f.time), f.image);
+    baked.add(renderer.render(SceneView<Scalar>(v.baked), f.camera).color, f.image);
+    v.gain_db += (deformed.psnr() - baked.psnr()) / double(k);
+    deformed_regions += deformed;
+    baked_regions += baked;
   }
   v.region_gain_db = region_gain_db(deformed_regions, baked_regions, kStillRegionRank, &v.region);
   v.bake = v.gain_db < p.still_gain_db && v.region_gain_db < p.still_region_gain_db;

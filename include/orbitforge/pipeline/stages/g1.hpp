@@ -144,8 +144,6 @@ void stage_g1(PipelineRun<Scalar>& run) {
   if (run.stage_current("g1", key, outputs)) return;
   GaussianScene<Scalar> final_scene;
   if (reuse) {
-    std::error_code ec;
-    fs::remove(out / "g1" / "training.json", ec);  // an earlier run's: G1 does not train here
     final_scene = run.read_scene((out / "gmed0.ply").string());
   } else {
     const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
@@ -228,11 +226,7 @@ void stage_bound(PipelineRun<Scalar>& run) {
   if (run.stage_current("bound", key, outputs)) return;
   fs::create_directories(out / "bound");
   write_frame_list((out / "bound" / "frames.json").string(), frames);
-  if (same_as_g1) {
-    run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
-    std::error_code ec;
-    fs::remove(out / "bound" / "training.json", ec);  // an earlier run's: the bound does not train here
-  }
+  if (same_as_g1) run.log("bound: G1 trained on these frames with these settings; the bound is G1's final.ply");
   const GaussianScene<Scalar> scene =
       same_as_g1 ? run.read_scene((out / "final.ply").string())
                  : g1_detail::train_second(run, frames, p.g1_deformable, (out / "bound").string(), key, "bound");

@@ -229,8 +229,8 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
     r["invocation"] = {{"command", p.invocation.command}, {"settings", p.invocation.settings}};
   // What each reconstruction's levers decided (training_record.hpp).
   nlohmann::json training = nlohmann::json::object();
-  for (const char* s : {"g0", "g1", "g1_paper", "bound"})
-    if (run.keys.count(s) && fs::exists(out / s / "training.json"))
+  for (const std::string s : {"g0", "g1", "g1_paper", "bound"})
+    if (run.keys.count(s) && recorded_output(run.out, s, s + "/training.json"))
       training[s] = nlohmann::json::parse(read_file_bytes((out / s / "training.json").string()));
   r["training"] = training;
   if (p.deformable && p.static_proxy_diagnostics)
