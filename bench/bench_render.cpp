@@ -5,11 +5,19 @@
 // Scenes are random but shaped like real ones: Gaussians in a box in front of the
 // camera, anisotropic, opacities spread over (0, 1), SH degree 3, sized so that
 // 512x512 with 100k Gaussians blends about 35 Gaussians per pixel.
+// BM_ForwardBall / BM_BackwardBall: a sparser scene that weighs the per-Gaussian
+// stages more: means uniform in a unit ball, scales log-normal around 0.03
+// (sigma 0.4), opacity logits uniform in [-3, 4], SH degree 3, seen from radius 3
+// at 20 degrees elevation with fx = fy = 440 (about 21 contributions per pixel at
+// 512x512 with 100k Gaussians).
 //
 // Counters (per frame): contrib_px (contributions per pixel), fwd_ns_contrib and
 // bwd_ns_contrib (rasterizer forward / backward time per contribution, ns),
 // project_ms, sort_ms, bin_ms, raster_ms, and for backward the split between the
-// per-pixel and per-Gaussian stages. BM_RasterKernels also reports the kernels'
+// per-pixel and per-Gaussian stages. Whole passes: pass_ns_contrib (the whole
+// forward or backward, wall, per contribution) and, per Gaussian of the scene
+// (ns): project_ns_g, sort_ns_g, bin_ns_g and their sum gauss_ns_g (forward),
+// bwd_project_ns_g (backward). BM_RasterKernels also reports the kernels'
 // time per evaluated pixel-Gaussian pair (fwd_ns_eval, bwd_ns_eval), to set
 // against BM_ExpBlendLoop: the same evaluation (conic power, exp, alpha, colour
 // and transmittance blend) in a plain SIMD loop with every operand in registers
@@ -18,6 +26,7 @@
 //   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
 #include <benchmark/benchmark.h>
 
+#include <chrono>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -50,10 +59,29 @@ GaussianScenef make_scene(std::size_t n) {
   return s;
 }
 
-const GaussianScenef& scene(std::size_t n) {
-  static std::map<std::size_t, std::unique_ptr<GaussianScenef>> cache;
-  auto& p = cache[n];
-  if (!p) p = std::make_unique<GaussianScenef>(make_scene(n));
+GaussianScenef make_ball_scene(std::size_t n) {
+  std::mt19937 rng(4321);
+  std::uniform_real_distribution<float> u(-1.f, 1.f), logit(-3.f, 4.f);
+  std::normal_distribution<float> nd;
+  GaussianScenef s;
+  s.resize(n, 3);
+  for (std::size_t i = 0; i < n; ++i) {
+    Eigen::Vector3f x;
+    do x = Eigen::Vector3f(u(rng), u(rng), u(rng));
+    while (x.squaredNorm() > 1.f);  // rejection: uniform in the ball
+    for (int a = 0; a < 3; ++a) s.means[3 * i + a] = x[a];
+    for (int a = 0; a < 4; ++a) s.rotations[4 * i + a] = nd(rng);
+    for (int a = 0; a < 3; ++a) s.log_scales[3 * i + a] = std::log(0.03f) + 0.4f * nd(rng);
+    s.opacity_logits[i] = logit(rng);
+  }
+  for (std::size_t j = 0; j < s.sh.size(); ++j) s.sh[j] = (j % 48 < 3 ? 0.8f : 0.15f) * u(rng);
+  return s;
+}
+
+const GaussianScenef& scene(std::size_t n, bool ball = false) {
+  static std::map<std::pair<std::size_t, bool>, std::unique_ptr<GaussianScenef>> cache;
+  auto& p = cache[{n, ball}];
+  if (!p) p = std::make_unique<GaussianScenef>(ball ? make_ball_scene(n) : make_scene(n));
   return *p;
 }
 
@@ -62,6 +90,23 @@ Cameraf camera(int w, int h) {
   const float f = 1.1f * float(h);  // vertical fov ~ 49 degrees
   c.intrinsics = {f, f, 0.5f * float(w), 0.5f * float(h), w, h};
   c.t = Eigen::Vector3f(0, 0, 3.2f);
+  return c;
+}
+
+// The ball scene's camera: radius 3, elevation 20 degrees, looking at the origin
+// (world z up), fx = fy = 440.
+Cameraf ball_camera(int w, int h) {
+  const float el = 20.f * float(M_PI) / 180.f;
+  const Eigen::Vector3f centre(3.f * std::cos(el), 0.f, 3.f * std::sin(el));
+  const Eigen::Vector3f forward = -centre.normalized();
+  const Eigen::Vector3f right = forward.cross(Eigen::Vector3f::UnitZ()).normalized();
+  const Eigen::Vector3f down = forward.cross(right);
+  Cameraf c;
+  c.intrinsics = {440.f, 440.f, 0.5f * float(w), 0.5f * float(h), w, h};
+  c.R.row(0) = right.transpose();
+  c.R.row(1) = down.transpose();
+  c.R.row(2) = forward.transpose();
+  c.t = -c.R * centre;
   return c;
 }
 
@@ -85,14 +130,15 @@ void set_counters(benchmark::State& state, const RenderStats& st, int w, int h) 
 }
 
 // Args: width, height, gaussians, threads, tight_extents
-void BM_Forward(benchmark::State& state) {
+void forward_pass(benchmark::State& state, bool ball) {
   const int w = int(state.range(0)), h = int(state.range(1));
-  const auto& s = scene(std::size_t(state.range(2)));
+  const std::size_t n = std::size_t(state.range(2));
+  const auto& s = scene(n, ball);
   RenderParams<float> p;
   p.threads = int(state.range(3));
   p.tight_extents = state.range(4) != 0;
   Renderer<float> r(p);
-  const auto cam = camera(w, h);
+  const auto cam = ball ? ball_camera(w, h) : camera(w, h);
   r.render(SceneView<float>(s), cam);  // first frame allocates
   RenderStats sum;
   double cpu = 0;
@@ -105,33 +151,45 @@ void BM_Forward(benchmark::State& state) {
     sum.sort_ms += out.frame.sort_ms;
     sum.bin_ms += out.frame.bin_ms;
     sum.raster_ms += out.frame.raster_ms;
+    sum.total_ms += out.frame.total_ms;
     sum.contributions = out.frame.contributions;
     sum.pairs_evaluated = out.frame.pairs_evaluated;
     sum.gaussians_visible = out.frame.gaussians_visible;
     sum.tile_entries = out.frame.tile_entries;
   }
   const double k = 1.0 / double(state.iterations());
-  sum.project_ms *= k; sum.sort_ms *= k; sum.bin_ms *= k; sum.raster_ms *= k;
+  sum.project_ms *= k; sum.sort_ms *= k; sum.bin_ms *= k; sum.raster_ms *= k; sum.total_ms *= k;
   set_counters(state, sum, w, h);
   state.counters["main_thread_cpu_ms"] = cpu * k;
   state.counters["tile_entries"] = double(sum.tile_entries);
+  state.counters["pass_ns_contrib"] = sum.total_ms * 1e6 / double(std::max<std::uint64_t>(1, sum.contributions));
+  const double per_g = 1e6 / double(std::max<std::size_t>(1, n));
+  state.counters["project_ns_g"] = sum.project_ms * per_g;
+  state.counters["sort_ns_g"] = sum.sort_ms * per_g;
+  state.counters["bin_ns_g"] = sum.bin_ms * per_g;
+  state.counters["gauss_ns_g"] = (sum.project_ms + sum.sort_ms + sum.bin_ms) * per_g;
 }
+void BM_Forward(benchmark::State& state) { forward_pass(state, false); }
+void BM_ForwardBall(benchmark::State& state) { forward_pass(state, true); }
 
 // Args: width, height, gaussians, threads. dL/dcolour = 1 everywhere plus alpha and depth terms.
-void BM_Backward(benchmark::State& state) {
+void backward_pass(benchmark::State& state, bool ball) {
   const int w = int(state.range(0)), h = int(state.range(1));
-  const auto& s = scene(std::size_t(state.range(2)));
+  const std::size_t n = std::size_t(state.range(2));
+  const auto& s = scene(n, ball);
   RenderParams<float> p;
   p.threads = int(state.range(3));
   Renderer<float> r(p);
-  const auto cam = camera(w, h);
+  const auto cam = ball ? ball_camera(w, h) : camera(w, h);
   const auto& out = r.render(SceneView<float>(s), cam);
   Imagef v_color(w, h, 3, 1.f), v_alpha(w, h, 1, 0.5f), v_depth(w, h, 1, 0.01f);
   r.backward(SceneView<float>(s), cam, v_color, &v_alpha, &v_depth);  // first call allocates
-  double raster_ms = 0, project_ms = 0;
+  double raster_ms = 0, project_ms = 0, pass_ms = 0;
   for (auto _ : state) {
+    const auto t0 = std::chrono::steady_clock::now();
     const auto& g = r.backward(SceneView<float>(s), cam, v_color, &v_alpha, &v_depth);
     benchmark::DoNotOptimize(g.means.data());
+    pass_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     raster_ms += r.output().frame.backward_raster_ms;
     project_ms += r.output().frame.backward_project_ms;
   }
@@ -139,8 +197,13 @@ void BM_Backward(benchmark::State& state) {
   state.counters["contrib_px"] = double(out.frame.contributions) / (double(w) * h);
   state.counters["bwd_raster_ms"] = raster_ms * k;
   state.counters["bwd_project_ms"] = project_ms * k;
-  state.counters["bwd_ns_contrib"] = raster_ms * k * 1e6 / double(std::max<std::uint64_t>(1, out.frame.contributions));
+  const double contributions = double(std::max<std::uint64_t>(1, out.frame.contributions));
+  state.counters["bwd_ns_contrib"] = raster_ms * k * 1e6 / contributions;
+  state.counters["pass_ns_contrib"] = pass_ms * k * 1e6 / contributions;
+  state.counters["bwd_project_ns_g"] = project_ms * k * 1e6 / double(std::max<std::size_t>(1, n));
 }
+void BM_Backward(benchmark::State& state) { backward_pass(state, false); }
+void BM_BackwardBall(benchmark::State& state) { backward_pass(state, true); }
 
 // The per-pixel kernels alone, one thread, timed in thread CPU time.
 // Args: width, height, gaussians.
@@ -251,6 +314,13 @@ BENCHMARK(BM_Forward)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.3);
+BENCHMARK(BM_ForwardBall)
+    ->ArgNames({"w", "h", "n", "threads", "tight"})
+    ->Args({512, 512, 100000, 1, 1})
+    ->Args({512, 512, 100000, 2, 1})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.3);
 BENCHMARK(BM_RasterKernels)
     ->ArgNames({"w", "h", "n"})
     ->Args({256, 256, 10000})
@@ -262,6 +332,14 @@ BENCHMARK(BM_ExpBlendLoop)->ArgName("exp2")->Arg(0)->Arg(1)->MinTime(0.3);
 BENCHMARK(BM_Backward)
     ->ArgNames({"w", "h", "n", "threads"})
     ->Apply([](benchmark::internal::Benchmark* b) { sizes(b, false); })
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(0.3);
+
+BENCHMARK(BM_BackwardBall)
+    ->ArgNames({"w", "h", "n", "threads"})
+    ->Args({512, 512, 100000, 1})
+    ->Args({512, 512, 100000, 2})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.3);
