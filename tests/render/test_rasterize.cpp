@@ -220,6 +220,47 @@ TEST_CASE("binning on several threads gives the same lists as on one", "[render]
   }
 }
 
+TEST_CASE("the tile lists and their rank-major slots are those of a plain enumeration", "[render]") {
+  // Every tile lists, front to back, the ranks whose tile box covers it; a
+  // rank's slots number its box's tiles in row-major order, ranks in order.
+  const int w = 200, h = 72;  // a partial last column and row of tiles
+  const auto s = random_splats<float>(9000, w, h, 5);
+  for (int threads : {1, 2}) {
+    INFO("threads " << threads);
+    BinWorkspace<float> bins;
+    bin_splats(s, w, h, 16, bins, threads);
+    const TileGrid& g = bins.grid;
+    REQUIRE(bins.visible() > 4096);  // more than one rank chunk on two threads
+    std::vector<std::vector<std::int32_t>> ranks(std::size_t(g.tile_count()));
+    std::vector<std::vector<std::uint32_t>> slots(std::size_t(g.tile_count()));
+    std::uint32_t k = 0;
+    for (std::size_t r = 0; r < bins.visible(); ++r) {
+      const auto& b = bins.rank_boxes[r];
+      const std::size_t i = std::size_t(b[4]);
+      REQUIRE(bins.order[r] == b[4]);
+      CHECK(b[0] == s.rect_x0[i] / 16);
+      CHECK(b[1] == s.rect_y0[i] / 16);
+      CHECK(b[2] == s.rect_x1[i] / 16);
+      CHECK(b[3] == s.rect_y1[i] / 16);
+      if (r > 0) CHECK(bins.records[r - 1].depth <= bins.records[r].depth);
+      CHECK(bins.rank_offsets[r] == k);
+      for (int ty = b[1]; ty <= b[3]; ++ty)
+        for (int tx = b[0]; tx <= b[2]; ++tx) {
+          ranks[std::size_t(ty * g.tiles_x + tx)].push_back(std::int32_t(r));
+          slots[std::size_t(ty * g.tiles_x + tx)].push_back(k++);
+        }
+    }
+    CHECK(bins.rank_offsets[bins.visible()] == k);
+    REQUIRE(bins.pairs() == k);
+    for (int t = 0; t < g.tile_count(); ++t) {
+      const std::uint32_t b = bins.tile_offsets[std::size_t(t)], e = bins.tile_offsets[std::size_t(t) + 1];
+      REQUIRE(e - b == ranks[std::size_t(t)].size());
+      CHECK(std::equal(bins.tile_ranks.begin() + b, bins.tile_ranks.begin() + e, ranks[std::size_t(t)].begin()));
+      CHECK(std::equal(bins.entry_slot.begin() + b, bins.entry_slot.begin() + e, slots[std::size_t(t)].begin()));
+    }
+  }
+}
+
 TEST_CASE("the depth radix sort is the stable sort", "[render]") {
   // Many equal keys (ties keep index order), negative and
   // positive depths, and keys that differ only in their high bytes.
