@@ -3,7 +3,7 @@
 // scene, and at the default thresholds (TrainParams::still_gain_db,
 // still_region_gain_db) one whose object moves only in part is kept, which the
 // whole-image figure alone would bake, while a still scene is under the
-// whole-image threshold. Quality checks of short trainings (registered in normal builds
+// whole-image threshold (its best region is not pinned: see the test). Quality checks of short trainings (registered in normal builds
 // only; the check's code paths run sanitized in train.training_levers).
 #include <catch2/catch.hpp>
 
@@ -105,7 +105,7 @@ TEST_CASE("still-scene check at the default thresholds: a part that moves is kep
   // region is not pinned here: on two machines it came out at 0.77 and 1.27 dB
   // (the threshold is 1.1), the trajectories of a 600-iteration fit differing
   // in rounding; the still videos' decisions are measured in docs/benchmarks.md.
+  // (The fit up to the check does not depend on the thresholds, so this is also
+  // the decision the whole-image threshold alone would make: bake.)
   CHECK(still.field_gain_db < defaults.still_gain_db);
-  const ShortcutState whole_only = check_after_fit(frames_of(0, 1), defaults.still_gain_db, 1e6);
-  CHECK(whole_only.field_baked);
 }
