@@ -99,6 +99,11 @@ inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
       ->transform(thread_count())
       ->group(kTrainingGroup);
   app.add_option("--seed", p.seed, "random seed")->transform(at_least(0))->group(kTrainingGroup);
+  app.add_flag("--exposure", p.train.exposure_compensation,
+               "learn an exposure and white-balance transform per training frame, kept out of the scene "
+               "(photographs whose exposure or colour balance changed between shots)")
+      ->group(kTrainingGroup);
+  app.add_option("--exposure-lr", p.train.exposure_lr, "see --exposure")->check(positive())->group(kTrainingGroup);
   app.add_option("--still-check", p.train.still_check_iterations,
                  "N iterations after the warm-up, bake the field in and train static when it fits the frames less "
                  "than --still-gain dB better than its bake, and no image region more than --still-region-gain dB "

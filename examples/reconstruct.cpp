@@ -17,7 +17,8 @@
 // Writes to --out: checkpoint.bin (trainer state, incl. the deformation network),
 // scene.ply (static: the trained scene; deformable: the MedianGS bake), metrics.json
 // {iterations, seconds, gaussians, train_psnr, holdout_psnr, holdout_ssim,
-// holdout_psnr_baked (deformable), curve (with --eval-every), frame, invocation} and
+// holdout_psnr_baked (deformable), curve (with --eval-every), exposure (with --exposure),
+// frame, invocation} and
 // settings.toml (the resolved settings; --config settings.toml replays the run). Training runs in a
 // frame normalised to the cameras (splat/scene_frame.hpp; metrics.json "frame" gives
 // origin and scale, and checkpoint.bin is in it); scene.ply is in the model's own frame. --minutes stops
@@ -256,7 +257,7 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.field = field;
   p.field.scale_offset = a.scale_offset == "additive" ? ScaleOffset::additive : ScaleOffset::log;
   p.min_densify_interval = a.min_densify_interval;
-  const TrainParams& levers = shared.train;  // the flags that skip work, as the pipeline's
+  const TrainParams& levers = shared.train;  // the flags that skip work, and --exposure, as the pipeline's
   p.coarse_levels = levers.coarse_levels;
   p.coarse_fraction = levers.coarse_fraction;
   p.still_check_iterations = levers.still_check_iterations;
@@ -265,6 +266,8 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.plateau_window = levers.plateau_window;
   p.plateau_tolerance = levers.plateau_tolerance;
   p.densify_params.max_gaussians = levers.densify_params.max_gaussians;
+  p.exposure_compensation = levers.exposure_compensation;
+  p.exposure_lr = levers.exposure_lr;
   p.scaling_lr = a.scaling_lr.value_or(p.scaling_lr);
   p.deform_lr_final = a.deform_lr_final.value_or(p.deform_lr_final);
   p.time_noise = a.time_noise.value_or(p.time_noise);
@@ -339,6 +342,14 @@ int run(const Args& a, const RunInvocation& invocation) {
     m["holdout_ssim"] = e.ssim;
   }
   if (!curve.empty()) m["curve"] = curve;
+  if (trainer.exposure().enabled()) {  // per training frame: A (row-major 3x3) and b of c' = A c + b
+    nlohmann::json ex = nlohmann::json::array();
+    for (std::size_t f = 0; f < trainer.exposure().frames(); ++f) {
+      const S* t = trainer.exposure().transform(f);
+      ex.push_back({{"A", std::vector<double>(t, t + 9)}, {"b", std::vector<double>(t + 9, t + 12)}});
+    }
+    m["exposure"] = ex;
+  }
   m["frame"] = {{"origin", {d.frame.origin[0], d.frame.origin[1], d.frame.origin[2]}}, {"scale", d.frame.scale}};
   if (!shortcuts.empty()) m["levers"] = shortcuts;
   // How the run was asked for: its command line and the settings OUT/settings.toml replays.

@@ -117,6 +117,7 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
       {"gaussian budget", [](TrainParams& t) { t.densify_params.max_gaussians = 30000; }},
       {"pruning floor", [](TrainParams& t) { t.densify_params.min_gaussians = 1000; }},
       {"random background", [](TrainParams& t) { t.random_background = true; }},
+      {"exposure compensation", [](TrainParams& t) { t.exposure_compensation = true; }},
       {"field width", [](TrainParams& t) { t.field.width = 64; }},
       {"time frequencies", [](TrainParams& t) { t.field.t_frequencies = 6; }},
       {"head init", [](TrainParams& t) { t.field.head_init_scale = 0.01; }},
@@ -142,6 +143,7 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
       {"plateau tolerance, plateau off", [](TrainParams& t) { t.plateau_tolerance = 0.02; }},
       {"time noise steps, noise off", [](TrainParams& t) { t.time_noise_steps = 1000; }},
       {"threads", [](TrainParams& t) { t.threads = 7; }},
+      {"exposure rate, compensation off", [](TrainParams& t) { t.exposure_lr = 0.01; }},
       {"screen-size fraction, fixed background", [](TrainParams& t) { t.densify_params.max_screen_fraction = 0.3; }},
   };
   TrainParams quiet = base;
@@ -172,7 +174,7 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
 #if defined(__x86_64__) && defined(__linux__)
   // A tripwire, not a result: a setting added to (or removed from) these structs
   // must be keyed in train_settings, then these sizes updated.
-  CHECK(sizeof(TrainParams) == 424);
+  CHECK(sizeof(TrainParams) == 432);
   CHECK(sizeof(DensifyParams) == 88);
   CHECK(sizeof(DensifySchedule) == 16);
   CHECK(sizeof(DeformationFieldParams) == 40);

@@ -3,7 +3,7 @@
 // needs to continue exactly where it stopped, as plain data.
 //
 // Layout (native endianness; binary_io's primitives, nn/binary_io.hpp):
-//   tag "OFTRAIN2" + scalar size (u32)
+//   tag "OFTRAIN4" + scalar size (u32)
 //   iteration, budget (i32); frame count (u64); seed (u32); deformable (u8);
 //   scene extent (Scalar); elapsed seconds (f64)
 //   still-scene check: checked (u8), field baked (u8), the field's gain (f64);
@@ -14,6 +14,8 @@
 //   draw, a frame repeated as often as it is weighted), cursor (u64)
 //   densification statistics: gradient sums (f64), counts (u32), max radii (Scalar)
 //   deformable and not baked only: the DeformationField record, then its Adam
+//   per-frame exposure transforms (array of Scalar, 12 per frame; empty when off),
+//   then, when not empty, their Adam
 // A file adds binary_io's checksum trailer and is written atomically; a damaged,
 // cut or extended file is refused before any of it is parsed.
 //
@@ -73,10 +75,12 @@ struct TrainingCheckpoint {
   ShortcutState shortcuts;  // field_baked: no field follows
   std::unique_ptr<DeformationField<Scalar>> field;  // deformable and not baked only
   Adam<Scalar> field_adam;
+  std::vector<Scalar> exposure;  // train/frame_exposure.hpp's transforms; empty when off
+  Adam<Scalar> exposure_adam;
 };
 
 namespace checkpoint_detail {
-inline constexpr char kTag[9] = "OFTRAIN3";
+inline constexpr char kTag[9] = "OFTRAIN4";
 }
 
 template <class Scalar>
@@ -120,6 +124,8 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
     c.field->save(os);
     c.field_adam.save(os);
   }
+  write_array(os, c.exposure.data(), c.exposure.size());
+  if (!c.exposure.empty()) c.exposure_adam.save(os);
   ensure(bool(os), "write_checkpoint: write failed");
 }
 
@@ -190,6 +196,15 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
     c.field_adam.load(is);
     ensure(c.field_adam.group_count() == 1 && c.field_adam.group(0).rows == c.field->parameter_count(),
            "checkpoint: deformation optimizer does not match the network");
+  }
+  c.exposure = read_array<Scalar>(is, "exposure transforms");
+  c.exposure_adam = Adam<Scalar>(adam_params);
+  if (!c.exposure.empty()) {
+    ensure(c.exposure.size() == c.frame_count * 12, "checkpoint: ", c.exposure.size(),
+           " exposure values for ", c.frame_count, " frames (12 each)");
+    c.exposure_adam.load(is);
+    ensure(c.exposure_adam.group_count() == 1 && c.exposure_adam.group(0).size() == c.exposure.size(),
+           "checkpoint: exposure optimizer does not match the transforms");
   }
   return c;
 }

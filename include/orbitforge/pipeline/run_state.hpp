@@ -67,6 +67,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
       {"init_points", p.init_points},
       {"scalar_bytes", sizeof(Scalar)}};
   if (t.random_background) j["random_background"] = true;
+  if (t.exposure_compensation) j["exposure_lr"] = t.exposure_lr;
   if (t.densify)
     j["densification"] = {{"grad_threshold", d.grad_threshold},
                           {"percent_dense", d.percent_dense},

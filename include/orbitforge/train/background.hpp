@@ -136,4 +136,10 @@ inline std::array<double, 3> random_background_at(unsigned seed, int it) {
   return {{u(rng), u(rng), u(rng)}};
 }
 
+// A colour as a renderer's background (RenderParams::background) holds it.
+template <class Scalar>
+std::array<Scalar, 3> background_color(const std::array<double, 3>& c) {
+  return {{Scalar(c[0]), Scalar(c[1]), Scalar(c[2])}};
+}
+
 }  // namespace orbitforge

@@ -15,7 +15,6 @@
 #include "orbitforge/splat/scene_grad.hpp"
 #include "orbitforge/splat/scene_view.hpp"
 #include "orbitforge/train/losses.hpp"
-#include "orbitforge/train/train_frame.hpp"
 #include "orbitforge/train/train_progress.hpp"
 
 namespace orbitforge {
@@ -32,23 +31,23 @@ class DeformedPass {
                                      offsets_.scale_offset);
   }
 
-  // Forward and backward on `frame` at time code t: the loss (its gradient w.r.t.
-  // the render in v_color), v_field() = d loss / d field parameters, base_grad() =
-  // d loss / d canonical Gaussians. ms: field (forward and vjp), render, loss and
-  // backward times.
+  // Forward and backward at `camera` and time code t: the loss, loss(render, v_color)
+  // -> LossTerms with its gradient w.r.t. the render in v_color; v_field() = d loss /
+  // d field parameters, base_grad() = d loss / d canonical Gaussians. ms: field
+  // (forward and vjp), render, loss and backward times.
+  template <class LossFn>
   LossTerms<Scalar> forward_backward(const GaussianScene<Scalar>& scene, const DeformationField<Scalar>& field,
-                                     Renderer<Scalar>& renderer, const TrainFrame<Scalar>& frame, Scalar t,
-                                     double lambda_dssim, Image<Scalar>& v_color, SsimWorkspace<Scalar>& ssim_ws,
-                                     int threads, double ms[4]) {
+                                     Renderer<Scalar>& renderer, const Camera<Scalar>& camera, Scalar t,
+                                     LossFn&& loss_fn, Image<Scalar>& v_color, int threads, double ms[4]) {
     LapTimer lap;
     const Eigen::Index n = Eigen::Index(scene.size());
     const DeformedSceneView<Scalar> dview = view(scene, field, t, threads);
     ms[0] = lap();
-    const RenderOutput<Scalar>& out = renderer.render(dview, frame.camera);
+    const RenderOutput<Scalar>& out = renderer.render(dview, camera);
     ms[1] = lap();
-    const LossTerms<Scalar> loss = combined_loss(out.color, frame.image, v_color, ssim_ws, lambda_dssim, threads);
+    const LossTerms<Scalar> loss = loss_fn(out.color, v_color);
     ms[2] = lap();
-    const GaussianSceneGrad<Scalar>& vg = renderer.backward(dview, frame.camera, v_color);
+    const GaussianSceneGrad<Scalar>& vg = renderer.backward(dview, camera, v_color);
     ms[3] = lap();
     // d loss / d offsets = the gradients w.r.t. the deformed view's parameters.
     v_offsets_.resize(n);

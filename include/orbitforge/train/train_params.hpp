@@ -24,6 +24,10 @@ struct TrainParams {
   // colour is noise, so the scene must explain every pixel, backdrop included.
   // `background` stays the colour of every other render (evaluation, bakes).
   bool random_background = false;
+  // Per-frame exposure and white balance (frame_exposure.hpp): an affine colour
+  // transform per training frame, learned at exposure_lr and kept out of the scene.
+  bool exposure_compensation = false;
+  double exposure_lr = 2e-3;
 
   // Learning rates. Positions: exponential decay from init to final over the
   // budget, both times the scene extent (3DGS spatial_lr_scale).

@@ -1,11 +1,13 @@
 #pragma once
 // What one training iteration reports (Trainer::step, the train() callback).
 #include <chrono>
+#include <cmath>
 #include <cstddef>
 #include <string>
 
 #include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/losses.hpp"
 
 namespace orbitforge {
 
@@ -36,6 +38,13 @@ struct TrainProgress {
   // A problem to tell the user, set on the first iteration that shows it only
   // (near_cull_warning); empty otherwise.
   std::string warning;
+
+  // The iteration's loss terms, and the PSNR of its mean squared error.
+  template <class Scalar>
+  void set_loss(const LossTerms<Scalar>& l) {
+    loss = double(l.total), l1 = double(l.l1), ssim = double(l.ssim);
+    psnr = l.mse > 0 ? -10.0 * std::log10(l.mse) : 100.0;
+  }
 };
 
 // Milliseconds since the previous lap (or since construction): the breakdown of

@@ -10,14 +10,15 @@
 //
 // One iteration (1-based `it`), as 3DGS train.py: learning rates; SH degree raise;
 // the next frame of a seeded shuffled order; render (deformed after the warm-up);
-// loss 0.8 L1 + 0.2 (1 - SSIM); backward; Adam steps; density control and
-// opacity resets; the still-scene check and the plateau stop when enabled. Unlike
-// 3DGS, the optimizer step comes before densification in the same iteration.
+// loss 0.8 L1 + 0.2 (1 - SSIM), through the frame's exposure transform when on;
+// backward; Adam steps; density control and opacity resets; the still-scene check
+// and the plateau stop when enabled. Unlike 3DGS, the optimizer step comes before
+// densification in the same iteration.
 //
 // This class is the loop; each concept it drives has a header of its own:
 // train_frame / train_params / train_progress (data), schedules, frame_order,
-// coarse_to_fine, deformed_pass, gaussian_adam, densify_driver, still_check,
-// plateau_stop, background, trainer_checkpoint (the state and its record).
+// frame_exposure, coarse_to_fine, deformed_pass, gaussian_adam, densify_driver,
+// still_check, plateau_stop, background, trainer_checkpoint (state and record).
 //
 // Determinism: the same frames, initial scene, params and thread count give the
 // same result bit for bit, and a run resumed from a checkpoint (written
@@ -25,7 +26,6 @@
 // uninterrupted one.
 #include <algorithm>
 #include <chrono>
-#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -43,6 +43,7 @@
 #include "orbitforge/train/deformed_pass.hpp"
 #include "orbitforge/train/densify.hpp"
 #include "orbitforge/train/densify_driver.hpp"
+#include "orbitforge/train/frame_exposure.hpp"
 #include "orbitforge/train/frame_order.hpp"
 #include "orbitforge/train/gaussian_adam.hpp"
 #include "orbitforge/train/losses.hpp"
@@ -84,10 +85,12 @@ class Trainer {
     rp.threads = params.threads;
     rp.near_plane = params.near_plane_fraction * double(s_.extent);
     renderer_ = Renderer<Scalar>(rp);
-    set_background(params.background);
+    renderer_.params().background = background_color<Scalar>(params.background);
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
     s_.stats.reset(scene.size());
     s_.field_adam = Adam<Scalar>(params.adam);
+    if (params.exposure_compensation)
+      s_.exposure = FrameExposure<Scalar>(frames_.size(), params.adam, params.exposure_lr);
     if (params.deformable) {
       s_.field = std::make_unique<DeformationField<Scalar>>(params.field);
       if (params.normalize_field) {
@@ -111,6 +114,7 @@ class Trainer {
   DeformationField<Scalar>* field() { return s_.field.get(); }  // writable (a test perturbs it); null when static
   const Adam<Scalar>& optimizer() const { return s_.adam; }
   const DensifyStats<Scalar>& densify_stats() const { return s_.stats; }
+  const FrameExposure<Scalar>& exposure() const { return s_.exposure; }  // per-frame colour transforms (or off)
   int iteration() const { return s_.iteration; }
   Scalar extent() const { return s_.extent; }
   const TrainProgress& last_progress() const { return last_; }
@@ -153,9 +157,11 @@ class Trainer {
     ensure(s_.field != nullptr, "Trainer::deformed_loss_gradient: the trainer is not deformable");
     ensure(frame < frames_.size(), "Trainer::deformed_loss_gradient: frame ", frame, " of ", frames_.size());
     double ms[4];
-    const LossTerms<Scalar> loss = deformed_.forward_backward(s_.scene, *s_.field, renderer_, frames_[frame], t,
-                                                              params_.lambda_dssim, v_color_, ssim_ws_,
-                                                              params_.threads, ms);
+    const auto loss_fn = [&](const Image<Scalar>& r, Image<Scalar>& v) {
+      return combined_loss(r, frames_[frame].image, v, ssim_ws_, params_.lambda_dssim, params_.threads);
+    };
+    const LossTerms<Scalar> loss = deformed_.forward_backward(s_.scene, *s_.field, renderer_, frames_[frame].camera,
+                                                              t, loss_fn, v_color_, params_.threads, ms);
     v_field = deformed_.v_field();
     return loss.total;
   }
@@ -195,8 +201,12 @@ class Trainer {
     const int level = image_level_at(it);
     const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_.at(frames_, fi, level);
     const bool deforming = deforming_at(it);
-    if (params_.random_background) set_background(random_background_at(params_.seed, it));
+    if (params_.random_background)
+      renderer_.params().background = background_color<Scalar>(random_background_at(params_.seed, it));
     const GaussianSceneGrad<Scalar>* grad = nullptr;
+    const auto loss_fn = [&](const Image<Scalar>& render, Image<Scalar>& v) {
+      return s_.exposure.loss_and_step(fi, render, frame.image, v, ssim_ws_, params_.lambda_dssim, threads);
+    };
     LossTerms<Scalar> loss;
     LapTimer lap;
     double field_ms = 0;
@@ -205,15 +215,15 @@ class Trainer {
       lap();
       renderer_.render(view, frame.camera);
       last_.render_ms = lap();
-      loss = combined_loss(renderer_.output().color, frame.image, v_color_, ssim_ws_, params_.lambda_dssim, threads);
+      loss = loss_fn(renderer_.output().color, v_color_);
       last_.loss_ms = lap();
       grad = &renderer_.backward(view, frame.camera, v_color_);
       last_.backward_ms = lap();
     } else {
       const Scalar t = frame.time + time_noise_at<Scalar>(params_, it, s_.order.remaining_with_last(), s_.rng);
       double ms[4];
-      loss = deformed_.forward_backward(s_.scene, *s_.field, renderer_, frame, t, params_.lambda_dssim, v_color_,
-                                        ssim_ws_, threads, ms);
+      loss = deformed_.forward_backward(s_.scene, *s_.field, renderer_, frame.camera, t, loss_fn, v_color_, threads,
+                                        ms);
       field_ms = ms[0], last_.render_ms = ms[1], last_.loss_ms = ms[2], last_.backward_ms = ms[3];
       grad = &deformed_.base_grad();
       lap();
@@ -229,9 +239,9 @@ class Trainer {
       last_.warning = near_cull_warning(last_.render, renderer_.params().near_plane);
       near_warned_ = !last_.warning.empty();
     }
-    last_.psnr = loss.mse > 0 ? -10.0 * std::log10(loss.mse) : 100.0;
 
-    if (params_.random_background) set_background(params_.background);  // every other render: the fixed colour
+    if (params_.random_background)  // every other render: the fixed colour
+      renderer_.params().background = background_color<Scalar>(params_.background);
     step_gaussians(s_.adam, s_.scene, *grad, threads);
     last_.adam_ms = lap();
 
@@ -246,24 +256,13 @@ class Trainer {
 
     const double secs = std::chrono::duration<double>(clock::now() - t0).count();
     s_.elapsed += secs;
-    last_.iteration = it;
-    last_.iterations = params_.iterations;
-    last_.loss = double(loss.total);
-    last_.l1 = double(loss.l1);
-    last_.ssim = double(loss.ssim);
-    last_.gaussians = s_.scene.size();
-    last_.sh_degree = s_.scene.sh_degree;
-    last_.deforming = deforming;
-    last_.image_level = level;
-    last_.seconds_per_iteration = secs;
-    last_.elapsed_seconds = s_.elapsed;
-    last_.frame = fi;
+    last_.set_loss(loss);
+    last_.iteration = it, last_.iterations = params_.iterations;
+    last_.gaussians = s_.scene.size(), last_.sh_degree = s_.scene.sh_degree;
+    last_.deforming = deforming, last_.image_level = level, last_.frame = fi;
+    last_.seconds_per_iteration = secs, last_.elapsed_seconds = s_.elapsed;
     last_.shortcuts = s_.shortcuts;
     return last_;
-  }
-
-  void set_background(const std::array<double, 3>& c) {
-    for (int k = 0; k < 3; ++k) renderer_.params().background[std::size_t(k)] = Scalar(c[std::size_t(k)]);
   }
 
   // The still-scene check (still_check.hpp); a bake keeps the scene's size and row

@@ -16,6 +16,7 @@
 #include "orbitforge/nn/adam.hpp"
 #include "orbitforge/splat/gaussians.hpp"
 #include "orbitforge/train/densify.hpp"
+#include "orbitforge/train/frame_exposure.hpp"
 #include "orbitforge/train/frame_order.hpp"
 #include "orbitforge/train/gaussian_adam.hpp"
 #include "orbitforge/train/train_params.hpp"
@@ -36,6 +37,7 @@ struct TrainState {
   ShortcutState shortcuts;  // still-scene check and plateau stop
   std::unique_ptr<DeformationField<Scalar>> field;  // null: static, or baked by the still-scene check
   Adam<Scalar> field_adam;
+  FrameExposure<Scalar> exposure;  // off unless TrainParams::exposure_compensation
 };
 
 // The state as a record, with what it must be resumed with: budget, frame count,
@@ -66,12 +68,14 @@ TrainingCheckpoint<Scalar> make_checkpoint(const TrainState<Scalar>& s, const Tr
     c.field = std::make_unique<DeformationField<Scalar>>(*s.field);
     c.field_adam = s.field_adam;
   }
+  c.exposure = s.exposure.transforms();
+  c.exposure_adam = s.exposure.optimizer();
   return c;
 }
 
 // Replaces `s` by the record's state. The record must have been made with the
 // same frames and params (checked: budget, frame count, seed, mode, SH degree,
-// optimizer layout, frame order length); nothing changes when a check fails.
+// optimizer layout, frame order length, exposure compensation); nothing changes when a check fails.
 template <class Scalar>
 void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, const TrainParams& p,
                         std::size_t frame_count) {
@@ -96,6 +100,11 @@ void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, con
   std::istringstream rs(c.rng_state);
   rs >> rng;
   ensure(!rs.fail(), "checkpoint: unreadable random generator state");
+  ensure(c.exposure.empty() != p.exposure_compensation, "checkpoint: made ",
+         c.exposure.empty() ? "without" : "with", " exposure compensation, this trainer is ",
+         p.exposure_compensation ? "with" : "without");
+  FrameExposure<Scalar> exposure;
+  if (!c.exposure.empty()) exposure = FrameExposure<Scalar>(std::move(c.exposure), std::move(c.exposure_adam));
   // Everything checked: commit.
   s.iteration = c.iteration;
   s.extent = c.extent;
@@ -112,6 +121,7 @@ void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, con
     s.field_adam = std::move(c.field_adam);
   }
   s.shortcuts = c.shortcuts;
+  s.exposure = std::move(exposure);
 }
 
 // Reads the file and restores `s` from it (restore_checkpoint), every error
