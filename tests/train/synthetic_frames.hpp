@@ -1,7 +1,8 @@
 #pragma once
 // Training frames rendered from a small synthetic scene (pipeline/inputs/synthetic_input.hpp)
 // at its true cameras: count frames of size x size pixels (width x size when width
-// is given), white background unless given, time codes spread over [0, 1].
+// is given), white background unless given, time codes spread over [0, 1]; and
+// settings to train on them.
 #include <vector>
 
 #include "orbitforge/pipeline/inputs/synthetic_input.hpp"
@@ -35,6 +36,19 @@ std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32,
     frames.push_back(std::move(f));
   }
   return frames;
+}
+
+// Training settings for these frames: one thread, a fixed seed, white background.
+inline orbitforge::TrainParams tiny_params(int iterations) {
+  orbitforge::TrainParams p;
+  p.iterations = iterations;
+  p.threads = 1;
+  p.seed = 11;
+  p.background = {1, 1, 1};
+  // The published interval (100 of 30000) scaled to these tiny budgets would densify
+  // every iteration; every budget/30 iterations keeps the scenes small and fast.
+  p.densify_schedule.densify_interval = 1000;
+  return p;
 }
 
 }  // namespace orbitforge_test

@@ -63,12 +63,8 @@ std::vector<TrainFrame<S>> exposed(std::vector<TrainFrame<S>> frames) {
 }
 
 TrainParams exposure_train_params(int iterations, bool compensate) {
-  TrainParams p;
-  p.iterations = iterations;
-  p.threads = 1;
-  p.seed = 5;
+  TrainParams p = orbitforge_test::tiny_params(iterations);
   p.background = {0.5, 0.5, 0.5};
-  p.densify_schedule.densify_interval = 1000;
   p.exposure_compensation = compensate;
   p.exposure_lr = 5e-3;
   return p;

@@ -26,6 +26,7 @@ using namespace orbitforge;
 namespace {
 
 using orbitforge_test::tiny_frames;
+using orbitforge_test::tiny_params;
 
 template <class S>
 GaussianScene<S> tiny_init(const std::vector<TrainFrame<S>>& frames, std::size_t points = 300) {
@@ -37,17 +38,6 @@ GaussianScene<S> tiny_init(const std::vector<TrainFrame<S>>& frames, std::size_t
   return init_random(cams, camera_extent(cams), ip);
 }
 
-TrainParams tiny_params(int iterations) {
-  TrainParams p;
-  p.iterations = iterations;
-  p.threads = 1;
-  p.seed = 11;
-  p.background = {1, 1, 1};
-  // The published interval (100 of 30000) scaled to these tiny budgets would densify
-  // every iteration; every budget/30 iterations keeps the scenes small and fast.
-  p.densify_schedule.densify_interval = 1000;
-  return p;
-}
 
 // Number of positions where two arrays differ (printing whole arrays on failure is useless).
 template <class S>
