@@ -3,25 +3,25 @@
 // exposure or colour balance between shots. Training frame f's render c is mapped
 // by an affine colour transform before the loss,
 //
-//   c' = A_f c + b_f        (A_f 3x3, b_f 3; stored as 12 values, A row-major, then b)
-//
-// with A_f diagonal: a gain per channel (exposure scales all three, white balance
-// each) and an offset (black level). Only these six values learn; the
-// off-diagonal entries stay zero, since a full colour matrix per frame also fitted
-// the view-dependent colour that sparse photographs leave unconstrained (on the
-// dino ring it cost 1.1 dB on withheld photographs of unchanged exposure).
+//   c' = clip(A_f c + b_f, 0, 1)   (A_f 3x3, b_f 3; stored as 12 values, A row-major, then b)
 //
 // so that a frame shot brighter or warmer than the others does not pull the
 // scene's colours, or grow floaters, to explain it. The transforms are learned
 // with the scene and are not part of it: every other render (evaluation, a bake,
 // held-out views, the still check) shows the scene's own colours.
 //
+// A_f is diagonal: a gain per channel (exposure scales all three, white balance
+// each) and an offset (black level). Only these six values learn; the
+// off-diagonal entries stay zero, since a full colour matrix per frame also fitted
+// the view-dependent colour that sparse photographs leave unconstrained (on the
+// dino ring it cost 1.1 dB on withheld photographs of unchanged exposure).
+//
 // A common change of every A_f and b_f could be absorbed by the scene's colours,
 // so after each step the transforms are recentred: their mean over the frames
 // stays the identity, and the scene keeps the frames' average exposure (with one
-// frame, nothing moves). A step
-// updates the drawn frame's transform only (its Adam moments; the other frames'
-// stay as they are), with the group's step count in the bias correction.
+// frame, nothing moves). A step updates the drawn frame's transform only (its
+// Adam moments; the other frames' stay as they are), with the group's step count
+// in the bias correction.
 #include <algorithm>
 #include <cstddef>
 #include <utility>
@@ -40,7 +40,7 @@ class FrameExposure {
  public:
   static constexpr int kWidth = 12;  // A_f (row-major), then b_f
 
-  FrameExposure() = default;  // off: loss() is combined_loss on the render itself
+  FrameExposure() = default;  // off: loss_and_step() is combined_loss on the render itself
   // `frames` identity transforms, learned at rate lr.
   FrameExposure(std::size_t frames, const AdamParams& adam, double lr) : adam_(adam) {
     ensure(frames > 0, "FrameExposure: no frames");
@@ -65,7 +65,7 @@ class FrameExposure {
   const Scalar* transform(std::size_t f) const { return transforms_.data() + f * kWidth; }
   const Adam<Scalar>& optimizer() const { return adam_; }
 
-  // out = A_f c + b_f at every pixel of a 3-channel image.
+  // out = A_f c + b_f at every pixel of a 3-channel image (not clipped).
   void apply(std::size_t f, const Image<Scalar>& render, Image<Scalar>& out, int threads = 1) const {
     check(f, render, "apply");
     const Scalar* t = transform(f);

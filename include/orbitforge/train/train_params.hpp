@@ -24,8 +24,9 @@ struct TrainParams {
   // colour is noise, so the scene must explain every pixel, backdrop included.
   // `background` stays the colour of every other render (evaluation, bakes).
   bool random_background = false;
-  // Per-frame exposure and white balance (frame_exposure.hpp): an affine colour
-  // transform per training frame, learned at exposure_lr and kept out of the scene.
+  // Per-frame exposure and white balance (frame_exposure.hpp): a gain per colour
+  // channel and an offset per training frame, learned at exposure_lr and kept out
+  // of the scene. Off by default (docs/real_photographs.md measures it).
   bool exposure_compensation = false;
   double exposure_lr = 2e-3;
 
