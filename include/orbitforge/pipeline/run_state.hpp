@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "orbitforge/geometry/completion_layout.hpp"
+#include "orbitforge/io/checkpoint.hpp"
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/io/ply.hpp"
@@ -65,7 +66,9 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
       {"densify", t.densify},
       {"median_samples", p.median_samples},
       {"init_points", p.init_points},
-      {"scalar_bytes", sizeof(Scalar)}};
+      {"scalar_bytes", sizeof(Scalar)},
+      // A checkpoint of an older format cannot be resumed, or read by the stages that load a finished one.
+      {"checkpoint_format", std::string(checkpoint_detail::kTag)}};
   if (t.random_background) j["random_background"] = true;
   if (t.exposure_compensation) j["exposure_lr"] = t.exposure_lr;
   if (t.densify)
