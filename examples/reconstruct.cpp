@@ -79,7 +79,7 @@ struct Args {
   int min_densify_interval = 50;
   // Single settings, for measuring a departure from the paper one at a time
   // (unset: the protocol's value).
-  std::optional<double> scaling_lr, deform_lr_final, time_noise, max_screen_fraction;
+  std::optional<double> scaling_lr, deform_lr_final, time_noise, max_screen_fraction, densify_passes, reset_passes;
   double minutes = 0;
   bool deformable = false;
   std::string field;  // empty: the protocol's network (fast; paper: the backend's 8 x 256)
@@ -148,6 +148,16 @@ std::unique_ptr<CLI::App> define(Args& a) {
   cli::add_optional(*app, "--max-screen-fraction", a.max_screen_fraction,
                     "with a random background, prune Gaussians wider on screen than this fraction of the frames' "
                     "longer side, never below 20 pixels (default 0.15; 0: 3DGS's 20 pixels)")
+      ->check(cli::non_negative())
+      ->group(single);
+  cli::add_optional(*app, "--densify-passes", a.densify_passes,
+                    "densify at most once per this many passes over the training frames (default 0.5; 0: the "
+                    "budget's interval alone)")
+      ->check(cli::non_negative())
+      ->group(single);
+  cli::add_optional(*app, "--reset-passes", a.reset_passes,
+                    "reset the opacities at most once per this many passes over the training frames (default 3; "
+                    "0: the budget's period alone)")
       ->check(cli::non_negative())
       ->group(single);
   app->add_option("--out", a.out, "output folder")->required();
@@ -272,6 +282,8 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.deform_lr_final = a.deform_lr_final.value_or(p.deform_lr_final);
   p.time_noise = a.time_noise.value_or(p.time_noise);
   p.densify_params.max_screen_fraction = a.max_screen_fraction.value_or(p.densify_params.max_screen_fraction);
+  p.densify_interval_passes = a.densify_passes.value_or(p.densify_interval_passes);
+  p.opacity_reset_passes = a.reset_passes.value_or(p.opacity_reset_passes);
   InitParams ip;
   ip.seed = shared.seed;
   GaussianScene<S> init;
@@ -332,6 +344,9 @@ int run(const Args& a, const RunInvocation& invocation) {
   m["iterations"] = trainer.iteration();
   m["seconds"] = train_seconds;
   m["gaussians"] = trainer.scene().size();
+  const DensifySchedule& ds = trainer.schedule().densify;
+  m["densification"] = {{"from", ds.densify_from}, {"until", ds.densify_until}, {"interval", ds.densify_interval},
+                        {"opacity_reset_interval", ds.opacity_reset_interval}};
   m["background"] = {{"color", d.background.color}, {"random", d.background.random}, {"reason", d.background.reason}};
   m["points"] = {{"kept", d.points.size() / 3}, {"total", d.points_total}};
   if (a.deformable) m["field"] = std::to_string(field.depth) + "x" + std::to_string(field.width);

@@ -318,6 +318,27 @@ TEST_CASE("schedule: published defaults and scaling to a budget", "[train][densi
   CHECK_THROWS_AS(scale_schedule(0), Error);
 }
 
+TEST_CASE("schedule: floors in passes over the training frames", "[train][densify]") {
+  const DensifySchedule budget = scale_schedule(3000, DensifySchedule{}, 30000, 50);  // every 50, reset every 300
+  // Up to 100 draws per pass the budget's intervals stand (half a pass <= 50, three passes <= 300).
+  for (std::size_t draws : {0u, 8u, 29u, 100u}) {
+    INFO(draws);
+    const DensifySchedule s = schedule_floors_for_frames(budget, draws, 0.5, 3);
+    CHECK(s.densify_interval == 50);
+    CHECK(s.opacity_reset_interval == 300);
+  }
+  const DensifySchedule long_input = schedule_floors_for_frames(budget, 301, 0.5, 3);
+  CHECK(long_input.densify_interval == 151);        // ceil(150.5)
+  CHECK(long_input.opacity_reset_interval == 903);  // three passes
+  CHECK(long_input.densify_from == budget.densify_from);
+  CHECK(long_input.densify_until == budget.densify_until);
+  const DensifySchedule off = schedule_floors_for_frames(budget, 301, 0, 0);
+  CHECK(off.densify_interval == 50);
+  CHECK(off.opacity_reset_interval == 300);
+  CHECK_THROWS_WITH(schedule_floors_for_frames(budget, 10, -1, 3), Catch::Contains("passes"));
+  CHECK_THROWS_WITH(schedule_floors_for_frames(budget, 10, 0.5, std::nan("")), Catch::Contains("passes"));
+}
+
 TEST_CASE("remap_per_gaussian follows the plan", "[train][densify]") {
   DensifyPlan plan;
   plan.keep = {1, 0, 1};

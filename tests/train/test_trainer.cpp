@@ -272,6 +272,15 @@ TEST_CASE("densification changes the count and keeps optimizer state aligned", "
   const auto& g = u.optimizer().group(0);  // means
   CHECK(g.m[3 * (u.scene().size() - 1)] == 0.0f);
   CHECK(g.v[3 * (u.scene().size() - 1)] == 0.0f);
+
+  // Frames drawn 30 times per pass: the trainer's schedule waits half a pass to
+  // densify and three passes to reset the opacities.
+  auto weighted = frames;
+  for (auto& f : weighted) f.repeats = 30;
+  const std::size_t draws = 30 * weighted.size();
+  const Trainer<S> w(weighted, tiny_init(weighted), tiny_params(budget));
+  CHECK(w.schedule().densify.densify_interval == std::max(20, int((draws + 1) / 2)));
+  CHECK(w.schedule().densify.opacity_reset_interval >= int(3 * draws));
 }
 
 TEST_CASE("deformable training: warm-up, then the field learns; checkpoint round trip", "[train][trainer]") {

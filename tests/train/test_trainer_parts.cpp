@@ -48,6 +48,13 @@ TEST_CASE("schedules: SH interval, warm-up and densification scale with the budg
   CHECK(s.raises_sh_degree_at(100));
   CHECK(s.raises_sh_degree_at(300));
   CHECK_FALSE(s.raises_sh_degree_at(150));
+  // Densification follows the number of frames as well as the budget.
+  p.min_densify_interval = 50;
+  CHECK(TrainSchedule::make(p, 29).densify.densify_interval == 50);
+  CHECK(TrainSchedule::make(p, 400).densify.densify_interval == 200);
+  CHECK(TrainSchedule::make(p, 400).densify.opacity_reset_interval == 1200);
+  p.densify_interval_passes = p.opacity_reset_passes = 0;
+  CHECK(TrainSchedule::make(p, 400).densify.densify_interval == 50);
   p.iterations = 10;  // the SH interval stays >= 1
   CHECK(TrainSchedule::make(p).sh_interval == 1);
   p.max_sh_degree = 4;

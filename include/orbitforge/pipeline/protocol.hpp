@@ -55,6 +55,7 @@ inline TrainParams paper_train_params(int iterations = 10000) {
   t.reference_budget = iterations;         // the schedule is not scaled to the budget
   t.deform_reference_budget = iterations;  // warm-up 3,000 as published
   t.min_densify_interval = 1;
+  t.densify_interval_passes = t.opacity_reset_passes = 0;
   t.position_lr_init = 1.6e-4;
   t.position_lr_final = 1.6e-6;
   t.position_lr_steps = 30000;

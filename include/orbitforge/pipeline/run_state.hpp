@@ -82,7 +82,8 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
                           {"max_gaussians", d.max_gaussians},
                           {"min_gaussians", d.min_gaussians},
                           {"schedule", {s.densify_from, s.densify_until, s.densify_interval, s.opacity_reset_interval}},
-                          {"min_interval", t.min_densify_interval}};
+                          {"min_interval", t.min_densify_interval},
+                          {"floors_in_passes", {t.densify_interval_passes, t.opacity_reset_passes}}};
   if (t.densify && t.random_background) j["densification"]["max_screen_fraction"] = d.max_screen_fraction;
   if (t.deformable) {
     const auto& f = t.field;

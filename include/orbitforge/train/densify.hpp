@@ -116,6 +116,24 @@ inline DensifySchedule scale_schedule(int iterations, const DensifySchedule& pub
   return s;
 }
 
+// Floors that follow the data rather than the budget, for `pass_length` draws
+// per pass over the training frames (FrameOrder; 0: unknown, no floor). A
+// densification decides on the gradients gathered since the last one, so it
+// waits for at least `interval_passes` of a pass (3DGS densifies every 100
+// iterations on 100-300 images: a third of a pass to a whole one); an opacity
+// reset waits for at least `reset_passes` passes, so that every frame is seen
+// a few times while the opacities grow back before the next reset.
+inline DensifySchedule schedule_floors_for_frames(DensifySchedule s, std::size_t pass_length, double interval_passes,
+                                                  double reset_passes) {
+  ensure(interval_passes >= 0 && reset_passes >= 0 && std::isfinite(interval_passes) && std::isfinite(reset_passes),
+         "schedule: the passes per densification and per opacity reset must be finite and >= 0, got ",
+         interval_passes, " and ", reset_passes);
+  auto draws = [&](double passes) { return int(std::min(1e9, std::ceil(passes * double(pass_length)))); };
+  s.densify_interval = std::max(s.densify_interval, draws(interval_passes));
+  s.opacity_reset_interval = std::max(s.opacity_reset_interval, draws(reset_passes));
+  return s;
+}
+
 // Scene extent as 3DGS defines it (getNerfppNorm): 1.1 times the largest distance of a
 // camera centre from the mean camera centre.
 template <class Scalar>

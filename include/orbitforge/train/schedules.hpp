@@ -24,7 +24,9 @@ struct TrainSchedule {
   int warmup = 3000;
   DensifySchedule densify;
 
-  static TrainSchedule make(const TrainParams& p) {
+  // `pass_length`: draws per pass over the training frames (0: unknown, no
+  // floors in passes).
+  static TrainSchedule make(const TrainParams& p, std::size_t pass_length = 0) {
     ensure(p.iterations > 0, "TrainParams: iterations must be positive, got ", p.iterations);
     ensure(p.reference_budget > 0 && p.deform_reference_budget > 0, "TrainParams: reference budgets must be positive");
     ensure(p.max_sh_degree >= 0 && p.max_sh_degree <= 3, "Trainer: max_sh_degree must be 0..3, got ", p.max_sh_degree);
@@ -34,7 +36,9 @@ struct TrainSchedule {
     const double f = double(p.iterations) / double(p.reference_budget);
     s.sh_interval = std::max(1, int(std::lround(p.sh_degree_interval * f)));
     s.warmup = int(std::lround(double(p.warmup_iterations) * double(p.iterations) / double(p.deform_reference_budget)));
-    s.densify = scale_schedule(p.iterations, p.densify_schedule, p.reference_budget, p.min_densify_interval);
+    s.densify = schedule_floors_for_frames(
+        scale_schedule(p.iterations, p.densify_schedule, p.reference_budget, p.min_densify_interval), pass_length,
+        p.densify_interval_passes, p.opacity_reset_passes);
     return s;
   }
 

@@ -30,6 +30,15 @@ int longer_side(const std::vector<TrainFrame<Scalar>>& frames) {
   return n;
 }
 
+// Draws per pass over the frames (FrameOrder): the sum of their repeats
+// (those outside 1..1000 are refused by check_train_frames; they count 0 here).
+template <class Scalar>
+std::size_t draws_per_pass(const std::vector<TrainFrame<Scalar>>& frames) {
+  std::size_t n = 0;
+  for (const auto& f : frames) n += f.repeats >= 1 && f.repeats <= 1000 ? std::size_t(f.repeats) : 0;
+  return n;
+}
+
 // Refuses an empty set and any frame whose image is not RGB of its camera's size,
 // whose camera or time code is not finite, or whose repeats lie outside 1..1000.
 template <class Scalar>

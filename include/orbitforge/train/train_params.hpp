@@ -59,6 +59,13 @@ struct TrainParams {
   // scaled to 1000 iterations the schedule densifies every 3 iterations on a
   // handful of views, and the Gaussian count explodes).
   int min_densify_interval = 1;
+  // Floors in passes over the training frames (schedule_floors_for_frames): a
+  // densification waits for half a pass, an opacity reset for three. On up to
+  // 100 draws per pass at the pipeline's budgets the floors above decide, so
+  // they matter for long inputs: 300 frames densify every 150 iterations, not
+  // on the gradients of 50 of them. 0 turns either off (the paper's protocol).
+  double densify_interval_passes = 0.5;
+  double opacity_reset_passes = 3;
 
   // Deformable training.
   bool deformable = false;

@@ -65,7 +65,7 @@ class Trainer {
   // `frames` must outlive the trainer. `initial` is the starting scene (see
   // train/init.hpp); its SH degree is the starting active degree.
   Trainer(const std::vector<TrainFrame<Scalar>>& frames, GaussianScene<Scalar> initial, const TrainParams& params)
-      : frames_(frames), params_(params), schedule_(TrainSchedule::make(params)) {
+      : frames_(frames), params_(params), schedule_(TrainSchedule::make(params, draws_per_pass(frames))) {
     check_train_frames(frames_);
     resolve_threads(params.threads, "TrainParams::threads");  // over the limit: refused before anything is built
     check_still_params(params);
