@@ -82,6 +82,7 @@ struct Args {
   std::optional<double> scaling_lr, deform_lr_final, time_noise, max_screen_fraction, densify_passes, reset_passes;
   double minutes = 0;
   bool deformable = false;
+  bool learn_background = false;
   std::string field;  // empty: the protocol's network (fast; paper: the backend's 8 x 256)
   std::string scale_offset = "log";
 
@@ -120,6 +121,10 @@ std::unique_ptr<CLI::App> define(Args& a) {
       ->group(training);
   app->add_option("--scale-offset", a.scale_offset, "how the field offsets scales: log or additive (paper: additive)")
       ->check(CLI::IsMember({"log", "additive"}))
+      ->group(training);
+  app->add_flag("--learn-background", a.learn_background,
+               "learn one background colour with the scene, from the chosen one (from the borders' median colour "
+               "where they disagree); not with --background random")
       ->group(training);
   app->add_option("--min-densify-interval", a.min_densify_interval,
                   "floor of the budget-scaled densification interval (paper: 1)")
@@ -261,6 +266,14 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.threads = threads;
   p.background = d.background.color;
   p.random_background = d.background.random;
+  if (a.learn_background) {
+    // Borders that disagree would choose a random colour; a learned one starts at their median instead.
+    if (d.background.random) p.background = d.background.border_median;
+    p.random_background = false;
+    p.learned_background = true;
+    std::fprintf(stderr, "reconstruct: learning the background colour, from %.3f,%.3f,%.3f\n", p.background[0],
+                 p.background[1], p.background[2]);
+  }
   p.deformable = a.deformable;
   const DeformationFieldParams field =
       !a.field.empty() ? parse_field(a.field) : paper ? paper_train_params().field : DeformationFieldParams::fast();
@@ -347,7 +360,11 @@ int run(const Args& a, const RunInvocation& invocation) {
   const DensifySchedule& ds = trainer.schedule().densify;
   m["densification"] = {{"from", ds.densify_from}, {"until", ds.densify_until}, {"interval", ds.densify_interval},
                         {"opacity_reset_interval", ds.opacity_reset_interval}};
-  m["background"] = {{"color", d.background.color}, {"random", d.background.random}, {"reason", d.background.reason}};
+  m["background"] = {{"color", d.background.color}, {"random", p.random_background}, {"reason", d.background.reason}};
+  if (p.learned_background) {
+    const std::array<S, 3> learned = trainer.background();
+    m["background"]["learned"] = {{"from", p.background}, {"color", {learned[0], learned[1], learned[2]}}};
+  }
   m["points"] = {{"kept", d.points.size() / 3}, {"total", d.points_total}};
   if (a.deformable) m["field"] = std::to_string(field.depth) + "x" + std::to_string(field.width);
   m["train_psnr"] = evaluate(trainer, d.train, threads, false).psnr;
@@ -370,13 +387,15 @@ int run(const Args& a, const RunInvocation& invocation) {
   // How the run was asked for: its command line and the settings OUT/settings.toml replays.
   m["invocation"] = {{"command", invocation.command}, {"settings", invocation.settings}};
   GaussianScene<S> out_scene;
+  const std::array<S, 3> rc = trainer.background();
+  const std::array<double, 3> resting_color{{double(rc[0]), double(rc[1]), double(rc[2])}};
   if (a.deformable && trainer.field()) {
     MedianBakeParams bp;
     bp.samples = shared.median_samples;
     bp.threads = threads;
     out_scene = bake_median(trainer.scene(), FieldDeformation<S>(*trainer.field(), threads), bp);
     if (!d.holdout.empty())
-      m["holdout_psnr_baked"] = evaluate_static(out_scene, d.holdout, d.background.color, threads).psnr;
+      m["holdout_psnr_baked"] = evaluate_static(out_scene, d.holdout, resting_color, threads).psnr;
   } else {
     out_scene = trainer.scene();
   }
@@ -399,6 +418,8 @@ int main(int argc, char** argv) {
     cli::end_pipeline_flags(*app, a.shared);
     if (a.shared.holdout_every == 1)
       throw UsageError("reconstruct: --holdout-every must be 0 (none) or at least 2 (1 would hold out every frame)");
+    if (a.learn_background && a.shared.random_background)
+      throw UsageError("reconstruct: --learn-background and --background random exclude each other");
     RunInvocation invocation{cli::shell_command(argc, argv), cli::settings_text(*app)};
     try {
       return run(a, invocation);

@@ -44,6 +44,8 @@ expect_refusal 2 "--frames" "$bin/fit_orbit" --synthetic --frames '' --out "$wor
 expect_refusal 2 "--no-such-flag" "$bin/full_pipeline" --no-such-flag --out "$work/run"
 expect_refusal 2 "--no-such-flag" "$bin/fit_orbit" --synthetic --no-such-flag --out "$work/o.json"
 expect_refusal 2 "--iters" "$bin/reconstruct" --colmap "$work/none" --out "$work/rec" --iters
+expect_refusal 2 "--learn-background and --background random" "$bin/reconstruct" --colmap "$work/none" \
+  --out "$work/rec" --learn-background --background random
 expect_refusal 2 "--views" "$bin/fit_orbit" --synthetic --out "$work/o.json" --views
 expect_refusal 2 "--config" "$bin/audit" --inputs "$work/none" --completion oracle --out "$work/audit" --config
 [[ ! -e "$work/o.json" && ! -e "$work/rec" && ! -e "$work/run" ]] || fail "a refused command left outputs"

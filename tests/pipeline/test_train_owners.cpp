@@ -98,3 +98,10 @@ TEST_CASE("pipeline settings: the paper protocol leaves the owned fields to thei
   p.iters_g0 = p.iters_g1 = 2000;  // --protocol paper --iters 2000
   REQUIRE_NOTHROW(check_train_owners(p, {1, 1, 1}));
 }
+
+TEST_CASE("pipeline settings: a learned background is refused, since every stage renders with the input's",
+          "[pipeline][params]") {
+  PipelineParams p;
+  p.train.learned_background = true;
+  REQUIRE_THROWS_WITH(check_train_owners(p, {1, 1, 1}), Catch::Contains("learned_background"));
+}

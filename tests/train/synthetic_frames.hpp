@@ -1,8 +1,9 @@
 #pragma once
 // Training frames rendered from a small synthetic scene (pipeline/inputs/synthetic_input.hpp)
 // at its true cameras: count frames of size x size pixels (width x size when width
-// is given), white background unless given, time codes spread over [0, 1]; and
+// is given), on a background colour (white unless given), time codes spread over [0, 1]; and
 // settings to train on them.
+#include <array>
 #include <vector>
 
 #include "orbitforge/pipeline/inputs/synthetic_input.hpp"
@@ -12,7 +13,8 @@
 namespace orbitforge_test {
 
 template <class S>
-std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32, int width = 0, double background = 1) {
+std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32, int width = 0,
+                                                   std::array<double, 3> background = {1, 1, 1}) {
   using namespace orbitforge;
   SyntheticInputParams p;
   p.frames = count;
@@ -25,7 +27,7 @@ std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32,
   const auto in = make_synthetic_input<S>(p);
   RenderParams<S> rp;
   rp.threads = 1;
-  rp.background = {S(background), S(background), S(background)};
+  rp.background = {S(background[0]), S(background[1]), S(background[2])};
   Renderer<S> r(rp);
   std::vector<TrainFrame<S>> frames;
   for (int i = 0; i < count; ++i) {

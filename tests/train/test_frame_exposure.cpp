@@ -174,7 +174,7 @@ TEST_CASE("frame exposure: the mapped render is clipped to [0, 1] as the frame's
 
 TEST_CASE("frame exposure: training on frames of differing exposure keeps the scene's colours", "[train][exposure]") {
   using S = float;
-  const auto clean = orbitforge_test::tiny_frames<S>(8, 32, 0, 0.5);
+  const auto clean = orbitforge_test::tiny_frames<S>(8, 32, 0, {0.5, 0.5, 0.5});
   const auto frames = exposed(clean);
   const int iters = 400;
   auto fit = [&](bool compensate, std::vector<double>* red_gains) {
@@ -210,7 +210,7 @@ TEST_CASE("frame exposure: training on frames of differing exposure keeps the sc
 
 TEST_CASE("frame exposure: checkpoints carry the transforms, and a mismatch is refused", "[train][exposure]") {
   using S = float;
-  const auto frames = exposed(orbitforge_test::tiny_frames<S>(8, 24, 0, 0.5));
+  const auto frames = exposed(orbitforge_test::tiny_frames<S>(8, 24, 0, {0.5, 0.5, 0.5}));
   const int budget = 60, n = 23;
   Trainer<S> full(frames, init_for(frames), exposure_train_params(budget, true));
   full.train(budget);

@@ -150,7 +150,7 @@ TEST_CASE("random background: the model explains the backdrop a fixed colour wou
   using S = float;
   // Frames over a grey backdrop. Trained against that grey, the model may leave
   // the backdrop empty; against a random colour per iteration it must cover it.
-  const auto frames = tiny_frames<S>(8, 32, 0, 0.5);
+  const auto frames = tiny_frames<S>(8, 32, 0, {0.5, 0.5, 0.5});
   auto transparency = [&](bool random) {
     TrainParams p = tiny_params(300);
     p.background = {0.5, 0.5, 0.5};

@@ -3,7 +3,7 @@
 // needs to continue exactly where it stopped, as plain data.
 //
 // Layout (native endianness; binary_io's primitives, nn/binary_io.hpp):
-//   tag "OFTRAIN4" + scalar size (u32)
+//   tag "OFTRAIN5" + scalar size (u32)
 //   iteration, budget (i32); frame count (u64); seed (u32); deformable (u8);
 //   scene extent (Scalar); elapsed seconds (f64)
 //   still-scene check: checked (u8), field baked (u8), the field's gain (f64);
@@ -16,6 +16,8 @@
 //   deformable and not baked only: the DeformationField record, then its Adam
 //   per-frame exposure transforms (array of Scalar, 12 per frame; empty when off),
 //   then, when not empty, their Adam
+//   learned background logits (array of Scalar, 3; empty when off), then, when
+//   not empty, their Adam
 // A file adds binary_io's checksum trailer and is written atomically; a damaged,
 // cut or extended file is refused before any of it is parsed.
 //
@@ -77,10 +79,12 @@ struct TrainingCheckpoint {
   Adam<Scalar> field_adam;
   std::vector<Scalar> exposure;  // train/frame_exposure.hpp's transforms; empty when off
   Adam<Scalar> exposure_adam;
+  std::vector<Scalar> background;  // train/learned_background.hpp's logits; empty when off
+  Adam<Scalar> background_adam;
 };
 
 namespace checkpoint_detail {
-inline constexpr char kTag[9] = "OFTRAIN4";
+inline constexpr char kTag[9] = "OFTRAIN5";
 }
 
 template <class Scalar>
@@ -126,6 +130,8 @@ void write_checkpoint(std::ostream& os, const TrainingCheckpoint<Scalar>& c) {
   }
   write_array(os, c.exposure.data(), c.exposure.size());
   if (!c.exposure.empty()) c.exposure_adam.save(os);
+  write_array(os, c.background.data(), c.background.size());
+  if (!c.background.empty()) c.background_adam.save(os);
   ensure(bool(os), "write_checkpoint: write failed");
 }
 
@@ -205,6 +211,14 @@ TrainingCheckpoint<Scalar> read_checkpoint(std::istream& is, const AdamParams& a
     c.exposure_adam.load(is);
     ensure(c.exposure_adam.group_count() == 1 && c.exposure_adam.group(0).size() == c.exposure.size(),
            "checkpoint: exposure optimizer does not match the transforms");
+  }
+  c.background = read_array<Scalar>(is, "background logits");
+  c.background_adam = Adam<Scalar>(adam_params);
+  if (!c.background.empty()) {
+    ensure(c.background.size() == 3, "checkpoint: ", c.background.size(), " background values, not an RGB colour");
+    c.background_adam.load(is);
+    ensure(c.background_adam.group_count() == 1 && c.background_adam.group(0).size() == 3,
+           "checkpoint: background optimizer does not match the colour");
   }
   return c;
 }

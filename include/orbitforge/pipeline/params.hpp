@@ -138,6 +138,9 @@ inline void check_train_owners(const PipelineParams& p, const std::array<double,
   refuse_if(t.random_background != unset.random_background && t.random_background != random_background,
             "random_background", t.random_background, "PipelineInput::random_background", random_background,
             unset.random_background);
+  // A learned colour would have to follow G0 into R0, the completion and G1.
+  ensure(!t.learned_background, "pipeline: params.train.learned_background is not supported: every stage renders "
+                                "with the input's background (reconstruct --background learned learns one)");
 }
 
 // The external provider is waiting for completed frames.

@@ -70,6 +70,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
       // A checkpoint of an older format cannot be resumed, or read by the stages that load a finished one.
       {"checkpoint_format", std::string(checkpoint_detail::kTag)}};
   if (t.random_background) j["random_background"] = true;
+  if (t.learned_background) j["learned_background_lr"] = t.background_lr;
   if (t.exposure_compensation) j["exposure_lr"] = t.exposure_lr;
   if (t.densify)
     j["densification"] = {{"grad_threshold", d.grad_threshold},

@@ -24,6 +24,11 @@ struct TrainParams {
   // colour is noise, so the scene must explain every pixel, backdrop included.
   // `background` stays the colour of every other render (evaluation, bakes).
   bool random_background = false;
+  // A background colour learned with the scene (learned_background.hpp), from
+  // `background`, at background_lr; every render after training uses the learned
+  // colour (Trainer::background). Not with random_background.
+  bool learned_background = false;
+  double background_lr = 1e-2;
   // Per-frame exposure and white balance (frame_exposure.hpp): a gain per colour
   // channel and an offset per training frame, learned at exposure_lr and kept out
   // of the scene. Off by default (docs/real_photographs.md measures it).

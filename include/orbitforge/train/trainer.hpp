@@ -11,19 +11,18 @@
 // One iteration (1-based `it`), as 3DGS train.py: learning rates; SH degree raise;
 // the next frame of a seeded shuffled order; render (deformed after the warm-up);
 // loss 0.8 L1 + 0.2 (1 - SSIM), through the frame's exposure transform when on;
-// backward; Adam steps; density control and opacity resets; the still-scene check
-// and the plateau stop when enabled. Unlike 3DGS, the optimizer step comes before
-// densification in the same iteration.
+// backward; Adam steps (the learned background's too, when on); density control
+// and opacity resets; the still-scene check and the plateau stop when enabled.
+// Unlike 3DGS, the optimizer step comes before densification.
 //
 // This class is the loop; each concept it drives has a header of its own:
 // train_frame / train_params / train_progress (data), schedules, frame_order,
 // frame_exposure, coarse_to_fine, deformed_pass, gaussian_adam, densify_driver,
-// still_check, plateau_stop, background, trainer_checkpoint (state and record).
+// still_check, plateau_stop, background, learned_background, trainer_checkpoint.
 //
 // Determinism: the same frames, initial scene, params and thread count give the
-// same result bit for bit, and a run resumed from a checkpoint (written
-// atomically; a damaged file is refused whole) continues exactly as an
-// uninterrupted one.
+// same result bit for bit, and a run resumed from a checkpoint (written atomically;
+// a damaged file is refused whole) continues exactly as an uninterrupted one.
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
@@ -46,6 +45,7 @@
 #include "orbitforge/train/frame_exposure.hpp"
 #include "orbitforge/train/frame_order.hpp"
 #include "orbitforge/train/gaussian_adam.hpp"
+#include "orbitforge/train/learned_background.hpp"
 #include "orbitforge/train/losses.hpp"
 #include "orbitforge/train/plateau_stop.hpp"
 #include "orbitforge/train/schedules.hpp"
@@ -85,7 +85,8 @@ class Trainer {
     rp.threads = params.threads;
     rp.near_plane = params.near_plane_fraction * double(s_.extent);
     renderer_ = Renderer<Scalar>(rp);
-    renderer_.params().background = background_color<Scalar>(params.background);
+    s_.background = learned_background_for<Scalar>(params);
+    renderer_.params().background = background();
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
     s_.stats.reset(scene.size());
     s_.field_adam = Adam<Scalar>(params.adam);
@@ -93,11 +94,8 @@ class Trainer {
       s_.exposure = FrameExposure<Scalar>(frames_.size(), params.adam, params.exposure_lr);
     if (params.deformable) {
       s_.field = std::make_unique<DeformationField<Scalar>>(params.field);
-      if (params.normalize_field) {
-        typename Camera<Scalar>::Vec3 mean = Camera<Scalar>::Vec3::Zero();
-        for (const auto& c : cams) mean += c.center();
-        s_.field->set_frame(mean / Scalar(cams.size()), s_.extent / Scalar(kFieldReferenceExtent));
-      }
+      if (params.normalize_field)
+        s_.field->set_frame(mean_camera_center(cams), s_.extent / Scalar(kFieldReferenceExtent));
       s_.field_adam.add_group("deformation", s_.field->parameter_count(), 1, Scalar(0));
     }
     s_.rng.seed(params.seed);
@@ -115,6 +113,8 @@ class Trainer {
   const Adam<Scalar>& optimizer() const { return s_.adam; }
   const DensifyStats<Scalar>& densify_stats() const { return s_.stats; }
   const FrameExposure<Scalar>& exposure() const { return s_.exposure; }  // per-frame colour transforms (or off)
+  // The background of every render but a training render with a random one (learned, when on).
+  std::array<Scalar, 3> background() const { return resting_background(s_.background, params_); }
   int iteration() const { return s_.iteration; }
   Scalar extent() const { return s_.extent; }
   const TrainProgress& last_progress() const { return last_; }
@@ -169,6 +169,7 @@ class Trainer {
   // The current model at a camera and time t (deformed when the deformation is active), in the
   // renderer's buffer: valid until the next render or training step.
   const Image<Scalar>& render(const Camera<Scalar>& camera, Scalar time) {
+    renderer_.params().background = background();  // a restored learned colour too
     if (!deforming_at(s_.iteration)) return renderer_.render(SceneView<Scalar>(s_.scene), camera).color;
     return renderer_.render(deformed_.view(s_.scene, *s_.field, time, params_.threads), camera).color;
   }
@@ -201,8 +202,8 @@ class Trainer {
     const int level = image_level_at(it);
     const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_.at(frames_, fi, level);
     const bool deforming = deforming_at(it);
-    if (params_.random_background)
-      renderer_.params().background = background_color<Scalar>(random_background_at(params_.seed, it));
+    renderer_.params().background =
+        params_.random_background ? background_color<Scalar>(random_background_at(params_.seed, it)) : background();
     const GaussianSceneGrad<Scalar>* grad = nullptr;
     const auto loss_fn = [&](const Image<Scalar>& render, Image<Scalar>& v) {
       return s_.exposure.loss_and_step(fi, render, frame.image, v, ssim_ws_, params_.lambda_dssim, threads);
@@ -240,8 +241,8 @@ class Trainer {
       near_warned_ = !last_.warning.empty();
     }
 
-    if (params_.random_background)  // every other render: the fixed colour
-      renderer_.params().background = background_color<Scalar>(params_.background);
+    if (s_.background.enabled()) s_.background.step(renderer_.background_gradient());
+    renderer_.params().background = background();  // after a random one, or a learned one's step
     step_gaussians(s_.adam, s_.scene, *grad, threads);
     last_.adam_ms = lap();
 

@@ -17,6 +17,7 @@
 #include "orbitforge/splat/gaussians.hpp"
 #include "orbitforge/train/densify.hpp"
 #include "orbitforge/train/frame_exposure.hpp"
+#include "orbitforge/train/learned_background.hpp"
 #include "orbitforge/train/frame_order.hpp"
 #include "orbitforge/train/gaussian_adam.hpp"
 #include "orbitforge/train/train_params.hpp"
@@ -38,6 +39,7 @@ struct TrainState {
   std::unique_ptr<DeformationField<Scalar>> field;  // null: static, or baked by the still-scene check
   Adam<Scalar> field_adam;
   FrameExposure<Scalar> exposure;  // off unless TrainParams::exposure_compensation
+  LearnedBackground<Scalar> background;  // off unless TrainParams::learned_background
 };
 
 // The state as a record, with what it must be resumed with: budget, frame count,
@@ -70,12 +72,15 @@ TrainingCheckpoint<Scalar> make_checkpoint(const TrainState<Scalar>& s, const Tr
   }
   c.exposure = s.exposure.transforms();
   c.exposure_adam = s.exposure.optimizer();
+  c.background = s.background.logits();
+  c.background_adam = s.background.optimizer();
   return c;
 }
 
 // Replaces `s` by the record's state. The record must have been made with the
 // same frames and params (checked: budget, frame count, seed, mode, SH degree,
-// optimizer layout, frame order length, exposure compensation); nothing changes when a check fails.
+// optimizer layout, frame order length, exposure compensation, learned background); nothing changes
+// when a check fails.
 template <class Scalar>
 void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, const TrainParams& p,
                         std::size_t frame_count) {
@@ -105,6 +110,10 @@ void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, con
          p.exposure_compensation ? "with" : "without");
   FrameExposure<Scalar> exposure;
   if (!c.exposure.empty()) exposure = FrameExposure<Scalar>(std::move(c.exposure), std::move(c.exposure_adam));
+  ensure(c.background.empty() != p.learned_background, "checkpoint: made ", c.background.empty() ? "without" : "with",
+         " a learned background, this trainer is ", p.learned_background ? "with" : "without");
+  LearnedBackground<Scalar> background;
+  if (!c.background.empty()) background = LearnedBackground<Scalar>(std::move(c.background), std::move(c.background_adam));
   // Everything checked: commit.
   s.iteration = c.iteration;
   s.extent = c.extent;
@@ -122,6 +131,7 @@ void restore_checkpoint(TrainState<Scalar>& s, TrainingCheckpoint<Scalar> c, con
   }
   s.shortcuts = c.shortcuts;
   s.exposure = std::move(exposure);
+  s.background = std::move(background);
 }
 
 // Reads the file and restores `s` from it (restore_checkpoint), every error
