@@ -1,13 +1,14 @@
 #pragma once
 // Training frames rendered from a small synthetic scene (pipeline/inputs/synthetic_input.hpp)
 // at its true cameras: count frames of size x size pixels (width x size when width
-// is given), on a background colour (white unless given), time codes spread over [0, 1]; and
-// settings to train on them.
+// is given), on a background colour (white unless given), time codes spread over [0, 1]; a
+// random initial scene and settings to train on them.
 #include <array>
 #include <vector>
 
 #include "orbitforge/pipeline/inputs/synthetic_input.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/init.hpp"
 #include "orbitforge/train/trainer.hpp"
 
 namespace orbitforge_test {
@@ -38,6 +39,19 @@ std::vector<orbitforge::TrainFrame<S>> tiny_frames(int count = 8, int size = 32,
     frames.push_back(std::move(f));
   }
   return frames;
+}
+
+// A random initial cloud of `points` Gaussians around the frames' cameras (seeded).
+template <class S>
+orbitforge::GaussianScene<S> tiny_init(const std::vector<orbitforge::TrainFrame<S>>& frames,
+                                       std::size_t points = 300) {
+  using namespace orbitforge;
+  std::vector<Camera<S>> cams;
+  for (const auto& f : frames) cams.push_back(f.camera);
+  InitParams ip;
+  ip.random_points = points;
+  ip.seed = 3;
+  return init_random(cams, camera_extent(cams), ip);
 }
 
 // Training settings for these frames: one thread, a fixed seed, white background.

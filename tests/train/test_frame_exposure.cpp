@@ -70,16 +70,6 @@ TrainParams exposure_train_params(int iterations, bool compensate) {
   return p;
 }
 
-template <class S>
-GaussianScene<S> init_for(const std::vector<TrainFrame<S>>& frames) {
-  std::vector<Camera<S>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
-  InitParams ip;
-  ip.random_points = 300;
-  ip.seed = 3;
-  return init_random(cams, camera_extent(cams), ip);
-}
-
 }  // namespace
 
 TEMPLATE_TEST_CASE("frame exposure: apply and its vjp match finite differences", "[train][exposure]", float, double) {
@@ -178,7 +168,7 @@ TEST_CASE("frame exposure: training on frames of differing exposure keeps the sc
   const auto frames = exposed(clean);
   const int iters = 400;
   auto fit = [&](bool compensate, std::vector<double>* red_gains) {
-    Trainer<S> t(frames, init_for(frames), exposure_train_params(iters, compensate));
+    Trainer<S> t(frames, orbitforge_test::tiny_init(frames), exposure_train_params(iters, compensate));
     t.train(iters);
     // The scene alone, against the frames before their exposure changed.
     RenderParams<S> rp;
@@ -212,14 +202,14 @@ TEST_CASE("frame exposure: checkpoints carry the transforms, and a mismatch is r
   using S = float;
   const auto frames = exposed(orbitforge_test::tiny_frames<S>(8, 24, 0, {0.5, 0.5, 0.5}));
   const int budget = 60, n = 23;
-  Trainer<S> full(frames, init_for(frames), exposure_train_params(budget, true));
+  Trainer<S> full(frames, orbitforge_test::tiny_init(frames), exposure_train_params(budget, true));
   full.train(budget);
-  Trainer<S> first(frames, init_for(frames), exposure_train_params(budget, true));
+  Trainer<S> first(frames, orbitforge_test::tiny_init(frames), exposure_train_params(budget, true));
   first.train(n);
   std::stringstream ss(std::ios::in | std::ios::out | std::ios::binary);
   first.save_checkpoint(ss);
   const std::string bytes = ss.str();
-  Trainer<S> resumed(frames, init_for(frames), exposure_train_params(budget, true));
+  Trainer<S> resumed(frames, orbitforge_test::tiny_init(frames), exposure_train_params(budget, true));
   resumed.load_checkpoint(ss);
   resumed.train(budget);
   CHECK(resumed.exposure().transforms() == full.exposure().transforms());
@@ -227,7 +217,7 @@ TEST_CASE("frame exposure: checkpoints carry the transforms, and a mismatch is r
   CHECK(resumed.scene().sh == full.scene().sh);
 
   std::stringstream again(bytes, std::ios::in | std::ios::binary);
-  Trainer<S> plain(frames, init_for(frames), exposure_train_params(budget, false));
+  Trainer<S> plain(frames, orbitforge_test::tiny_init(frames), exposure_train_params(budget, false));
   CHECK_THROWS_WITH(plain.load_checkpoint(again), Catch::Contains("with exposure compensation"));
   CHECK(plain.iteration() == 0);
 }

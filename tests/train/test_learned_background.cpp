@@ -18,16 +18,6 @@ using namespace orbitforge;
 
 namespace {
 
-template <class S>
-GaussianScene<S> init_for(const std::vector<TrainFrame<S>>& frames) {
-  std::vector<Camera<S>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
-  InitParams ip;
-  ip.random_points = 300;
-  ip.seed = 5;
-  return init_random(cams, camera_extent(cams), ip);
-}
-
 TrainParams learned_params(int iterations, bool learned) {
   TrainParams p = orbitforge_test::tiny_params(iterations);
   p.background = {0.5, 0.5, 0.5};
@@ -43,7 +33,7 @@ TEMPLATE_TEST_CASE("learned background: the logits' gradient through the rendere
                    "[train][background]", float, double) {
   using S = TestType;
   const auto frames = orbitforge_test::tiny_frames<S>(3, 24);
-  const GaussianScene<S> scene = init_for(frames);
+  const GaussianScene<S> scene = orbitforge_test::tiny_init(frames);
   const Camera<S>& camera = frames[0].camera;
   // L(u) = <w, render(background = sigmoid(u))> for a fixed weight image w.
   Image<S> w(camera.intrinsics.width, camera.intrinsics.height, 3);
@@ -101,7 +91,7 @@ TEST_CASE("learned background: training finds the backdrop's colour, and the mod
   using S = float;
   const auto frames = orbitforge_test::tiny_frames<S>(8, 32, 0, kBackdrop);
   const int iters = 400;
-  Trainer<S> t(frames, init_for(frames), learned_params(iters, true));
+  Trainer<S> t(frames, orbitforge_test::tiny_init(frames), learned_params(iters, true));
   t.train(iters);
   const std::array<S, 3> color = t.background();
   // The same model at its learned colour and at the grey it started from: where
@@ -126,13 +116,13 @@ TEST_CASE("learned background: checkpoints carry the colour, resume exactly, and
   using S = float;
   const auto frames = orbitforge_test::tiny_frames<S>(6, 24, 0, kBackdrop);
   const int budget = 60, n = 23;
-  Trainer<S> full(frames, init_for(frames), learned_params(budget, true));
+  Trainer<S> full(frames, orbitforge_test::tiny_init(frames), learned_params(budget, true));
   full.train(budget);
-  Trainer<S> first(frames, init_for(frames), learned_params(budget, true));
+  Trainer<S> first(frames, orbitforge_test::tiny_init(frames), learned_params(budget, true));
   first.train(n);
   std::stringstream ss(std::ios::in | std::ios::out | std::ios::binary);
   first.save_checkpoint(ss);
-  Trainer<S> resumed(frames, init_for(frames), learned_params(budget, true));
+  Trainer<S> resumed(frames, orbitforge_test::tiny_init(frames), learned_params(budget, true));
   resumed.load_checkpoint(ss);
   CHECK(resumed.background() == first.background());
   CHECK(resumed.background() != full.background());  // the colour moved after iteration n
@@ -142,10 +132,10 @@ TEST_CASE("learned background: checkpoints carry the colour, resume exactly, and
 
   std::stringstream again(std::ios::in | std::ios::out | std::ios::binary);
   first.save_checkpoint(again);
-  Trainer<S> without(frames, init_for(frames), learned_params(budget, false));
+  Trainer<S> without(frames, orbitforge_test::tiny_init(frames), learned_params(budget, false));
   CHECK_THROWS_WITH(without.load_checkpoint(again), Catch::Contains("learned background"));
 
   TrainParams both = learned_params(budget, true);
   both.random_background = true;
-  CHECK_THROWS_WITH(Trainer<S>(frames, init_for(frames), both), Catch::Contains("exclude each other"));
+  CHECK_THROWS_WITH(Trainer<S>(frames, orbitforge_test::tiny_init(frames), both), Catch::Contains("exclude each other"));
 }

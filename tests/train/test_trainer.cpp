@@ -26,17 +26,9 @@ using namespace orbitforge;
 namespace {
 
 using orbitforge_test::tiny_frames;
+using orbitforge_test::tiny_init;
 using orbitforge_test::tiny_params;
 
-template <class S>
-GaussianScene<S> tiny_init(const std::vector<TrainFrame<S>>& frames, std::size_t points = 300) {
-  std::vector<Camera<S>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
-  InitParams ip;
-  ip.random_points = points;
-  ip.seed = 3;
-  return init_random(cams, camera_extent(cams), ip);
-}
 
 
 // Number of positions where two arrays differ (printing whole arrays on failure is useless).
