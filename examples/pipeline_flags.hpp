@@ -42,6 +42,7 @@ struct PipelineFlags {
   // whether to search the focal length otherwise.
   double focal_px = 0, fov_deg = 0;
   bool focal_search = false;
+  std::string orbit_refine = "flagged";
 };
 
 inline const char* kInputGroup = "Input";
@@ -219,6 +220,12 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                    "also map at 0.8, 0.9, 1.1 and 1.25 times the mapper's own focal estimate and keep the cameras "
                    "that fit an orbit best (default: keep it)")
       ->group(cameras);
+  app.add_option("--orbit-refine", f.orbit_refine,
+                 "refine the cameras with the orbit as a prior (bundle adjustment): flagged = when the orbit check "
+                 "warns, always, off")
+      ->check(CLI::IsMember({"flagged", "always", "off"}))
+      ->capture_default_str()
+      ->group(cameras);
 }
 
 // Parses argv with the options `define(f)` returns an App for. The protocol sets
@@ -310,6 +317,7 @@ inline CameraStageParams camera_stage_params(const PipelineFlags& f) {
   cp.focal_px = f.focal_px;
   cp.fov_deg = f.fov_deg;
   if (f.focal_search) cp.focal_factors = {0.8, 0.9, 1.1, 1.25};
+  cp.orbit_refine = parse_orbit_refine(f.orbit_refine);
   return cp;
 }
 

@@ -5,76 +5,12 @@
 #include <random>
 #include <vector>
 
-#include "geometry/synthetic_orbit.hpp"
+#include "geometry/synthetic_bundle.hpp"
 #include "orbitforge/geometry/orbit_bundle_adjust.hpp"
 
 using namespace orbitforge;
 
 namespace {
-
-// A rigid scene seen from the source arc of a generated orbit video: 33
-// cameras over 125 degrees at constant radius and height, looking at the
-// centre of a ball of random points. Each point is matched over a window of
-// consecutive frames, as a sequential matcher gives.
-template <class S>
-struct RigidScene {
-  using Vec3 = Eigen::Matrix<S, 3, 1>;
-  orbitforge_test::SyntheticOrbit<S> orbit;
-  std::vector<Camera<S>> cameras;
-  std::vector<Vec3> points;
-  std::vector<BundleObservation<S>> observations;
-};
-
-template <class S>
-RigidScene<S> rigid_scene(int n_points, double noise_px, unsigned seed, int window = 12) {
-  using Vec3 = Eigen::Matrix<S, 3, 1>;
-  RigidScene<S> sc;
-  sc.orbit.count = 33;
-  sc.orbit.step_deg = 125.0 / 32;
-  sc.orbit.radius = 3.7;
-  sc.orbit.focal = 450;
-  for (const auto& f : sc.orbit.cameras()) sc.cameras.push_back(f.camera);
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> g(0, 1);
-  std::uniform_int_distribution<int> first(0, sc.orbit.count - window);
-  while (int(sc.points.size()) < n_points) {
-    Vec3 d(S(g(rng)), S(g(rng)), S(g(rng)));
-    const double u = std::uniform_real_distribution<double>(0, 1)(rng);
-    const Vec3 X = sc.orbit.look_at() + d.normalized() * S(std::cbrt(u));
-    const int f0 = first(rng);
-    std::vector<BundleObservation<S>> seen;
-    for (int i = f0; i < f0 + window; ++i) {
-      const auto& c = sc.cameras[std::size_t(i)];
-      const Eigen::Matrix<S, 2, 1> px = c.project(X);
-      if (c.to_camera(X).z() <= 0 || px.x() < 0 || px.y() < 0 || px.x() > 512 || px.y() > 512) continue;
-      seen.push_back({i, int(sc.points.size()), px + Eigen::Matrix<S, 2, 1>(S(g(rng)), S(g(rng))) * S(noise_px)});
-    }
-    if (seen.size() < 2) continue;
-    sc.points.push_back(X);
-    sc.observations.insert(sc.observations.end(), seen.begin(), seen.end());
-  }
-  return sc;
-}
-
-// Least-squares intersection of each point's rays (the midpoint method).
-template <class S>
-std::vector<Eigen::Matrix<S, 3, 1>> triangulate(const std::vector<Camera<S>>& cams, std::size_t n_points,
-                                                const std::vector<BundleObservation<S>>& obs) {
-  std::vector<Eigen::Matrix3d> A(n_points, Eigen::Matrix3d::Zero());
-  std::vector<Eigen::Vector3d> b(n_points, Eigen::Vector3d::Zero());
-  for (const auto& o : obs) {
-    const Camera<double> c = cams[std::size_t(o.camera)].template cast<double>();
-    const Eigen::Vector3d ray(((double(o.xy.x()) - c.intrinsics.cx) / c.intrinsics.fx),
-                              ((double(o.xy.y()) - c.intrinsics.cy) / c.intrinsics.fy), 1.0);
-    const Eigen::Vector3d d = (c.R.transpose() * ray).normalized();
-    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - d * d.transpose();
-    A[std::size_t(o.point)] += P;
-    b[std::size_t(o.point)] += P * c.center();
-  }
-  std::vector<Eigen::Matrix<S, 3, 1>> X;
-  for (std::size_t j = 0; j < n_points; ++j) X.push_back(A[j].ldlt().solve(b[j]).template cast<S>());
-  return X;
-}
 
 struct PoseErrors {
   double max_rot_deg = 0, max_shift = 0, last_azimuth_err_deg = 0, last_azimuth_deg = 0;
@@ -83,7 +19,7 @@ struct PoseErrors {
 
 // Errors against the truth, azimuths from frame 1 about the true orbit axis.
 template <class S>
-PoseErrors pose_errors(const std::vector<Camera<S>>& cams, const RigidScene<S>& sc) {
+PoseErrors pose_errors(const std::vector<Camera<S>>& cams, const orbitforge_test::RigidScene<S>& sc) {
   PoseErrors e;
   const auto& o = sc.orbit;
   auto az = [&](const Camera<S>& c) {
@@ -101,16 +37,6 @@ PoseErrors pose_errors(const std::vector<Camera<S>>& cams, const RigidScene<S>& 
   e.last_azimuth_deg = wrap_deg_360(az(cams.back()) - az(cams.front()));
   e.last_azimuth_err_deg = e.azimuth_err_deg.back();
   return e;
-}
-
-template <class S>
-std::vector<Camera<S>> under_rotated(const RigidScene<S>& sc, int k, double factor) {
-  std::vector<FrameCamera<S>> f;
-  for (const auto& c : sc.cameras) f.push_back({"", c, true});
-  orbitforge_test::under_rotate(f, k, factor, sc.orbit.center, sc.orbit.n());
-  std::vector<Camera<S>> out;
-  for (const auto& x : f) out.push_back(x.camera);
-  return out;
 }
 
 const char* precision_name(std::size_t size) { return size == 4 ? "float" : "double"; }
@@ -239,11 +165,11 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: residual Jacobians match finite differe
 
 TEMPLATE_TEST_CASE("orbit_bundle_adjust: an under-rotated arc is brought back", "[geometry][orbit_ba]", float, double) {
   using S = TestType;
-  const auto sc = rigid_scene<S>(2000, 0.5, 21);
+  const auto sc = orbitforge_test::rigid_scene<S>(2000, 0.5, 21);
   // Drift after the middle frame: the later arc compressed by 0.8 about frame 17,
   // the points triangulated from the drifted cameras.
-  const auto drifted = under_rotated(sc, 16, 0.8);
-  const auto points0 = triangulate(drifted, sc.points.size(), sc.observations);
+  const auto drifted = orbitforge_test::under_rotated(sc, 16, 0.8);
+  const auto points0 = orbitforge_test::triangulate(drifted, sc.points.size(), sc.observations);
   const PoseErrors before = pose_errors(drifted, sc);
 
   const auto t0 = std::chrono::steady_clock::now();
@@ -271,7 +197,7 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: an under-rotated arc is brought back", 
 TEMPLATE_TEST_CASE("orbit_bundle_adjust: weakly matched frames follow the orbit", "[geometry][orbit_ba]", float,
                    double) {
   using S = TestType;
-  auto sc = rigid_scene<S>(2000, 0.5, 33);
+  auto sc = orbitforge_test::rigid_scene<S>(2000, 0.5, 33);
   // Frames 9, 21 and 28 keep 4 observations each, 3 px off: their own matches
   // cannot place them well; the orbit can.
   const std::vector<int> weak = {8, 20, 27};
@@ -290,8 +216,8 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: weakly matched frames follow the orbit"
     }
     obs.push_back(o);
   }
-  const auto drifted = under_rotated(sc, 16, 0.8);
-  const auto points0 = triangulate(drifted, sc.points.size(), obs);
+  const auto drifted = orbitforge_test::under_rotated(sc, 16, 0.8);
+  const auto points0 = orbitforge_test::triangulate(drifted, sc.points.size(), obs);
   const auto res = orbit_bundle_adjust(drifted, points0, obs);
   OrbitBundleParams off;  // the same without priors (but the held camera and a radius to fix the scale)
   off.sigma_height = off.sigma_lookat_deg = off.sigma_roll_deg = off.sigma_accel_deg = 0;
@@ -320,7 +246,7 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: a clean arc stays where it was", "[geom
   using S = TestType;
   // Exact observations of an exact orbit: every prior holds at the truth.
   {
-    const auto sc = rigid_scene<S>(500, 0.0, 44);
+    const auto sc = orbitforge_test::rigid_scene<S>(500, 0.0, 44);
     const auto res = orbit_bundle_adjust(sc.cameras, sc.points, sc.observations);
     const PoseErrors e = pose_errors(res.cameras, sc);
     CHECK(e.max_rot_deg < (sizeof(S) == 4 ? 1e-3 : 1e-6));
@@ -330,8 +256,8 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: a clean arc stays where it was", "[geom
   // On this scene the plain optimum itself is 0.3-0.45 degrees from the truth
   // (a 1 m ball seen from 3.7 m through 12-frame windows is weakly conditioned).
   for (unsigned seed : {44u, 45u}) {
-    const auto sc = rigid_scene<S>(2000, 0.5, seed);
-    const auto points0 = triangulate(sc.cameras, sc.points.size(), sc.observations);
+    const auto sc = orbitforge_test::rigid_scene<S>(2000, 0.5, seed);
+    const auto points0 = orbitforge_test::triangulate(sc.cameras, sc.points.size(), sc.observations);
     OrbitBundleParams plain;
     plain.sigma_radius = plain.sigma_height = plain.sigma_lookat_deg = plain.sigma_roll_deg = plain.sigma_accel_deg = 0;
     const auto start = orbit_bundle_adjust(sc.cameras, points0, sc.observations, plain);
@@ -355,7 +281,7 @@ TEMPLATE_TEST_CASE("orbit_bundle_adjust: a clean arc stays where it was", "[geom
 }
 
 TEST_CASE("orbit_bundle_adjust: bad input is refused", "[geometry][orbit_ba]") {
-  const auto sc = rigid_scene<double>(50, 0.5, 3);
+  const auto sc = orbitforge_test::rigid_scene<double>(50, 0.5, 3);
   auto obs = sc.observations;
   obs[3].point = 50;
   CHECK_THROWS_WITH(orbit_bundle_adjust(sc.cameras, sc.points, obs),

@@ -276,6 +276,27 @@ TEST_CASE("COLMAP binary model equals the same model in text", "[io][colmap]") {
   CHECK(read_colmap_binary(tmp.str()).points.empty());
 }
 
+TEST_CASE("COLMAP text: a whole model (observations and tracks) is written and read back exactly", "[io][colmap]") {
+  TempDir tmp("colmap_model_rt");
+  write_text(tmp.str("cameras.bin"), cameras_bin());
+  write_text(tmp.str("images.bin"), images_bin());
+  write_text(tmp.str("points3D.bin"), points_bin());
+  ColmapModel m = read_colmap_binary(tmp.str());
+  // Values that need all 17 digits survive.
+  m.images.at(11).tvec.x() = 0.1 + 1e-16;
+  m.points[0].xyz.y() = -1.0 / 3.0;
+  m.images.at(12).name = "with space.png";
+  write_colmap_model_text(tmp.str("text"), m);
+  const ColmapModel back = read_colmap_text(tmp.str("text"));
+  require_same_models(m, back);
+
+  m.images.at(13).name = "two\nlines.png";
+  CHECK_THROWS_WITH(write_colmap_model_text(tmp.str("bad"), m), Catch::Contains("cannot be stored"));
+  m.images.at(13).name = "c.png";
+  m.images.at(13).qvec[0] = std::nan("");
+  CHECK_THROWS_WITH(write_colmap_model_text(tmp.str("bad"), m), Catch::Contains("non-finite pose"));
+}
+
 TEST_CASE("COLMAP binary: corrupt files are clear errors", "[io][colmap]") {
   // Every truncation of every file is an Error (never a crash or a huge allocation).
   for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{

@@ -508,55 +508,106 @@ std::vector<FrameCamera<S>> colmap_frame_cameras(const ColmapModel& model) {
   return out;
 }
 
-// Writes a text model: cameras.txt (one PINHOLE camera per frame, id = index + 1),
-// images.txt (id = index + 1, empty POINTS2D lines) and an empty points3D.txt.
-// Frames with valid = false are not written (COLMAP has no unregistered images).
-// Creates the folder; each file is written atomically.
-template <class S>
-void write_colmap_text(const std::string& model_dir, const std::vector<FrameCamera<S>>& cams) {
+namespace detail {
+// A text model holds a name as the rest of its line, trimmed.
+inline bool colmap_name_storable(const std::string& name) {
+  return !name.empty() && name.find_first_of("\n\r") == std::string::npos && trim_view(name).size() == name.size();
+}
+}  // namespace detail
+
+// Sets an image's pose from a world-to-camera rotation and translation
+// (x_cam = R x_world + t), the quaternion with w >= 0 as COLMAP writes it.
+inline void set_colmap_pose(ColmapImage& im, const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
+  Eigen::Quaterniond q(R);
+  q.normalize();
+  if (q.w() < 0) q.coeffs() *= -1.0;
+  im.qvec = Eigen::Vector4d(q.w(), q.x(), q.y(), q.z());
+  im.tvec = t;
+}
+
+// Writes `model` as a text model (cameras.txt, images.txt with each image's
+// POINTS2D, points3D.txt with each track), 17 significant digits, so that
+// read_colmap_text gives the model back. Creates the folder; each file is
+// written atomically. Names that a text model cannot hold (empty, a line break,
+// leading or trailing white space) and non-finite poses are errors.
+inline void write_colmap_model_text(const std::string& model_dir, const ColmapModel& model) {
   namespace fs = std::filesystem;
   std::error_code ec;
   fs::create_directories(model_dir, ec);
   ensure(!ec, model_dir, ": cannot create folder: ", ec.message());
   const fs::path dir(model_dir);
 
-  std::ostringstream cameras, images;
-  cameras << std::setprecision(17);
-  images << std::setprecision(17);
+  std::ostringstream cameras, images, points;
+  for (auto* o : {&cameras, &images, &points}) *o << std::setprecision(17);
   cameras << "# Camera list with one line of data per camera:\n"
           << "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n";
+  for (const auto& [id, c] : model.cameras) {
+    cameras << id << ' ' << c.model << ' ' << c.width << ' ' << c.height;
+    for (double v : c.params) cameras << ' ' << v;
+    cameras << '\n';
+  }
   images << "# Image list with two lines of data per image:\n"
          << "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
          << "#   POINTS2D[] as (X, Y, POINT3D_ID)\n";
+  const std::string images_file = (dir / "images.txt").string();
+  for (const auto& [id, im] : model.images) {
+    ensure(detail::colmap_name_storable(im.name), images_file, ": image ", id, " name '", im.name,
+           "' cannot be stored (empty, a line break, or leading/trailing white space)");
+    ensure(im.qvec.allFinite() && im.tvec.allFinite(), images_file, ": image ", id, " (", im.name,
+           ") has a non-finite pose");
+    images << id;
+    for (int k = 0; k < 4; ++k) images << ' ' << im.qvec[k];
+    for (int k = 0; k < 3; ++k) images << ' ' << im.tvec[k];
+    images << ' ' << im.camera_id << ' ' << im.name << '\n';
+    for (std::size_t i = 0; i < im.points2D.size(); ++i)
+      images << (i ? " " : "") << im.points2D[i].xy.x() << ' ' << im.points2D[i].xy.y() << ' '
+             << im.points2D[i].point3D_id;
+    images << '\n';
+  }
+  points << "# 3D point list with one line of data per point:\n"
+         << "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n";
+  for (const ColmapPoint& p : model.points) {
+    ensure(p.track_images.size() == p.track_point2D.size(), (dir / "points3D.txt").string(), ": point ", p.id, " has ",
+           p.track_images.size(), " track images but ", p.track_point2D.size(), " POINT2D_IDX");
+    points << p.id << ' ' << p.xyz.x() << ' ' << p.xyz.y() << ' ' << p.xyz.z() << ' ' << int(p.rgb[0]) << ' '
+           << int(p.rgb[1]) << ' ' << int(p.rgb[2]) << ' ' << p.error;
+    for (std::size_t k = 0; k < p.track_images.size(); ++k) points << ' ' << p.track_images[k] << ' ' << p.track_point2D[k];
+    points << '\n';
+  }
+  write_file_atomic((dir / "cameras.txt").string(), cameras.str());
+  write_file_atomic(images_file, images.str());
+  write_file_atomic((dir / "points3D.txt").string(), points.str());
+}
+
+// Writes cameras as a text model: one PINHOLE camera per frame (id = index + 1),
+// images with empty POINTS2D and no points. Frames with valid = false are not
+// written (COLMAP has no unregistered images).
+template <class S>
+void write_colmap_text(const std::string& model_dir, const std::vector<FrameCamera<S>>& cams) {
+  const std::string images_file = (std::filesystem::path(model_dir) / "images.txt").string();
+  ColmapModel model;
   int id = 0;
   for (std::size_t i = 0; i < cams.size(); ++i) {
     const FrameCamera<S>& f = cams[i];
     if (!f.valid) continue;
-    const std::string where = (dir / "images.txt").string();
-    ensure(f.camera.is_finite(), where, ": frame ", i, " (", f.name, ") has non-finite camera values");
-    ensure(!f.name.empty() && f.name.find_first_of("\n\r") == std::string::npos &&
-               trim_view(f.name).size() == f.name.size(),
-           where, ": frame ", i, " name '", f.name,
+    ensure(f.camera.is_finite(), images_file, ": frame ", i, " (", f.name, ") has non-finite camera values");
+    ensure(detail::colmap_name_storable(f.name), images_file, ": frame ", i, " name '", f.name,
            "' cannot be stored (empty, a line break, or leading/trailing white space)");
     const Intrinsics<double> k = f.camera.intrinsics.template cast<double>();
-    ensure(k.width > 0 && k.height > 0 && k.fx > 0 && k.fy > 0, (dir / "cameras.txt").string(), ": frame ", i, " (",
-           f.name, ") needs a positive image size and focal lengths, has ", k.width, "x", k.height, ", fx ", k.fx,
-           ", fy ", k.fy);
+    ensure(k.width > 0 && k.height > 0 && k.fx > 0 && k.fy > 0,
+           (std::filesystem::path(model_dir) / "cameras.txt").string(), ": frame ", i, " (", f.name,
+           ") needs a positive image size and focal lengths, has ", k.width, "x", k.height, ", fx ", k.fx, ", fy ",
+           k.fy);
     ++id;
-    cameras << id << " PINHOLE " << k.width << ' ' << k.height << ' ' << k.fx << ' ' << k.fy << ' ' << k.cx << ' '
-            << k.cy << '\n';
-    Eigen::Quaterniond q(f.camera.R.template cast<double>());
-    q.normalize();
-    if (q.w() < 0) q.coeffs() *= -1.0;  // canonical sign, as COLMAP writes
-    const Eigen::Vector3d t = f.camera.t.template cast<double>();
-    images << id << ' ' << q.w() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << ' ' << t.x() << ' ' << t.y()
-           << ' ' << t.z() << ' ' << id << ' ' << f.name << "\n\n";
+    model.cameras[id] = ColmapCamera{id, "PINHOLE", k.width, k.height, {k.fx, k.fy, k.cx, k.cy}};
+    ColmapImage im;
+    im.id = id;
+    im.camera_id = id;
+    im.name = f.name;
+    set_colmap_pose(im, f.camera.R.template cast<double>(), f.camera.t.template cast<double>());
+    model.images[id] = std::move(im);
   }
-  write_file_atomic((dir / "cameras.txt").string(), cameras.str());
-  write_file_atomic((dir / "images.txt").string(), images.str());
-  write_file_atomic((dir / "points3D.txt").string(),
-                    "# 3D point list with one line of data per point:\n"
-                    "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
+  write_colmap_model_text(model_dir, model);
 }
 
 }  // namespace orbitforge

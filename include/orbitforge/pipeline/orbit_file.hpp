@@ -11,6 +11,7 @@
 
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/geometry/orbit_check.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/splat/scene_frame.hpp"
@@ -189,6 +190,20 @@ std::vector<Camera<Scalar>> read_cameras_json(const std::string& path) {
     fail(path, ": not valid JSON: ", e.what());
   }
   return cameras_from_json<Scalar>(j, path);
+}
+
+// The orbit check's verdict and figures (orbit.json's "check", the cameras
+// stage's refinement record).
+inline nlohmann::json orbit_check_json(const OrbitCheck& c) {
+  return {{"ok", c.ok},
+          {"warnings", c.warnings},
+          {"flagged_frames", c.flagged_frames},
+          {"median_step_deg", c.median_step_deg},
+          {"trend_halves", c.trend_halves},
+          {"trend_split", c.trend_split},
+          {"circle_rmse", c.circle_rmse},
+          {"height_std", c.height_std},
+          {"lookat_error_deg", c.lookat_error_deg}};
 }
 
 }  // namespace orbitforge

@@ -21,6 +21,7 @@
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/orbit_refinement.hpp"
 
 namespace orbitforge {
 
@@ -44,6 +45,9 @@ struct CameraStageParams {
   // on the recorded videos the search moved the focal further from the
   // reference model's as often as closer (docs/cameras.md).
   std::vector<double> focal_factors;
+  // The chosen model's cameras refined with the orbit as a prior: when the
+  // orbit check warns (default), always, or never (pipeline/inputs/orbit_refinement.hpp).
+  OrbitRefine orbit_refine = OrbitRefine::flagged;
   std::function<void(const std::string&)> log;  // progress lines (stderr when empty)
 };
 

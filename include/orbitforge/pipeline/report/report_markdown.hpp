@@ -88,6 +88,16 @@ inline std::string report_markdown(const nlohmann::json& r) {
     if (at(cams, "estimate").is_object())
       md << " Focal length " << num(at(cams, "estimate", "focal_px"), 1) << " px (" << num(at(cams, "estimate", "chosen_by"))
          << ").";
+    const auto& refine = at(cams, "estimate", "orbit_refinement");
+    if (refine.is_object()) {
+      md << " Orbit refinement (" << num(at(refine, "mode")) << "): ";
+      if (at(refine, "applied") == true)
+        md << "applied, " << num(at(refine, "why")) << "; source arc " << num(at(refine, "arc_deg", "before"), 1)
+           << " -> " << num(at(refine, "arc_deg", "after"), 1) << " deg, cameras moved up to "
+           << num(at(refine, "max_rotation_change_deg"), 2) << " deg.";
+      else
+        md << "not applied, " << num(at(refine, "why")) << ".";
+    }
     const auto& ref = at(cams, "reference");
     if (ref.is_object()) {
       md << "\n\nAgainst the reference model " << num(at(ref, "reference")) << " (aligned on "

@@ -11,8 +11,11 @@
 //   cameras/colmap/fixed/focal_F/ the mapper's model with the focal held at F
 //                                 (--focal / --fov, or each candidate of the search)
 //   cameras/sparse/0/             the chosen model: the free mapper's largest, or
-//                                 the given focal's, or the search's best
-//   cameras/estimate.json         the focal length, how it was chosen, every candidate
+//                                 the given focal's, or the search's best (binary,
+//                                 as the mapper wrote it); in text when the orbit
+//                                 refinement changed it
+//   cameras/estimate.json         the focal length, how it was chosen, every
+//                                 candidate, and the orbit check and refinement
 //   cameras/logs/*.log            each tool's command line and output
 //
 // Evidence: frames outside the source range (--frames) never reach COLMAP, as a
@@ -43,6 +46,7 @@
 #include "orbitforge/pipeline/inputs/colmap_commands.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "orbitforge/pipeline/inputs/focal_search.hpp"
+#include "orbitforge/pipeline/inputs/orbit_refinement.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
 
 namespace orbitforge {
@@ -113,7 +117,8 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
                              {"init_min_tri_angle_deg", p.init_min_tri_angle_deg},
                              {"focal_given_px", p.focal_px},
                              {"fov_given_deg", p.fov_deg},
-                             {"focal_factors", p.focal_factors}};
+                             {"focal_factors", p.focal_factors},
+                             {"orbit_refine", orbit_refine_name(p.orbit_refine)}};
   std::uint64_t h = kFnv1aSeed;
   std::vector<std::string> input_names;
   if (!p.video.empty()) {
@@ -201,31 +206,42 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   };
   timed(colmap_feature_extractor_command(database.string(), colmap_images.string(), p), "feature_extractor.log");
   timed(colmap_sequential_matcher_command(database.string(), p), "sequential_matcher.log");
-  const FocalChoice choice = map_source_frames(colmap_dir.string(), colmap_images.string(), r.source_names, p, timed);
+  FocalChoice choice = map_source_frames(colmap_dir.string(), colmap_images.string(), r.source_names, p, timed);
   const std::string best = choice.model_dir;
   fs::create_directories(model_dir);
-  std::vector<std::string> outputs;
-  for (const char* f : {"cameras.bin", "images.bin", "points3D.bin"}) {
+  for (const char* f : {"cameras.bin", "images.bin", "points3D.bin"})
     ensure(fs::exists(fs::path(best) / f), "colmap mapper: model ", best, " has no ", f);
-    fs::copy_file(fs::path(best) / f, model_dir / f, fs::copy_options::overwrite_existing);
+  const OrbitRefinement refined = refine_model_on_orbit(read_colmap_model(best), p.orbit_refine);
+  for (const auto& w : refined.before.warnings) log("   cameras: warning: the cameras are not an orbit: " + w);
+  log("   cameras: " + refined.summary);
+  std::vector<std::string> model_files;
+  if (refined.applied) {
+    write_colmap_model_text(model_dir.string(), refined.model);
+    model_files = {"cameras.txt", "images.txt", "points3D.txt"};
+  } else {
+    model_files = {"cameras.bin", "images.bin", "points3D.bin"};
+    for (const auto& f : model_files) fs::copy_file(fs::path(best) / f, model_dir / f, fs::copy_options::overwrite_existing);
   }
+  choice.json["orbit_refinement"] = refined.json;
   write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
-  for (const auto& [id, im] : read_colmap_model(model_dir.string()).images) r.registered_names.push_back(im.name);
+  for (const auto& [id, im] : refined.model.images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
   log("   cameras: COLMAP registered " + std::to_string(r.registered_names.size()) + " of " +
       std::to_string(r.source_names.size()) + " source frames; " + choice.summary);
 
   // The record: every frame, what COLMAP saw, its database and the chosen model.
   const std::string base = "cameras/";
+  std::vector<std::string> outputs;
   for (const auto& n : names) outputs.push_back(base + "images/" + n);
   for (const auto& n : r.source_names) outputs.push_back(base + "colmap/images/" + n);
   outputs.push_back(base + "colmap/database.db");
-  for (const char* f : {"cameras.bin", "images.bin", "points3D.bin"}) outputs.push_back(base + "sparse/0/" + f);
+  for (const auto& f : model_files) outputs.push_back(base + "sparse/0/" + f);
   outputs.push_back(base + "estimate.json");
   settings["frames_total"] = names.size();
   settings["source_frames"] = r.source_names.size();
   settings["registered"] = r.registered_names.size();
   settings["focal_px"] = choice.focal_px;
+  settings["orbit_refined"] = refined.applied;
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   record_stage(out, "cameras", r.key, r.seconds, settings, outputs);
   return r;

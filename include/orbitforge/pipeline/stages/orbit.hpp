@@ -70,15 +70,7 @@ void stage_orbit(PipelineRun<Scalar>& run) {
   if (run.stage_current("orbit", key, outputs)) return;
   nlohmann::json oj = orbit_json(run.fit, run.layout, in.frame);
   oj["source_frames"] = source_frames_json(in);
-  oj["check"] = {{"ok", check.ok},
-                 {"warnings", check.warnings},
-                 {"flagged_frames", check.flagged_frames},
-                 {"median_step_deg", check.median_step_deg},
-                 {"trend_halves", check.trend_halves},
-                 {"trend_split", check.trend_split},
-                 {"circle_rmse", check.circle_rmse},
-                 {"height_std", check.height_std},
-                 {"lookat_error_deg", check.lookat_error_deg}};
+  oj["check"] = orbit_check_json(check);
   write_file_atomic((fs::path(run.out) / "orbit.json").string(), oj.dump(1) + "\n");
   finish_stage(run, "orbit", key, t0, settings, outputs);
 }
