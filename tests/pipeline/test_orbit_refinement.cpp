@@ -15,6 +15,7 @@
 #include "orbitforge/geometry/angles.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/pipeline/inputs/orbit_refinement.hpp"
+#include "orbitforge/pipeline/report/report_markdown.hpp"
 
 using namespace orbitforge;
 
@@ -106,6 +107,12 @@ TEST_CASE("orbit refinement: an under-rotated arc is caught and brought back by 
   std::filesystem::remove_all(dir);
   CHECK(max_rotation_between_deg(back, r.model) < 1e-9);
   CHECK(std::abs(relative_azimuths(back, sc.orbit).back() - refined_arc) < 1e-9);
+
+  // The report says what was done.
+  nlohmann::json report = {{"cameras", {{"path", "estimated"}, {"estimate", {{"focal_px", 450.0}, {"chosen_by", "mapper"}}}}}};
+  report["cameras"]["estimate"]["orbit_refinement"] = r.json;
+  const std::string md = report_markdown(report);
+  CHECK_THAT(md, Catch::Contains("Orbit refinement (flagged): applied, the orbit check warned: angular speed drifts"));
 
   // Off leaves the model alone even when the check warns.
   const OrbitRefinement off = refine_model_on_orbit(drifted, OrbitRefine::off);
