@@ -361,4 +361,14 @@ OrbitFit<Scalar> fit_orbit(const std::vector<FrameCamera<Scalar>>& source, const
   return fit;
 }
 
+// fit_orbit where only the fitted circle, axes and source azimuths are used
+// (checks and scores of the source cameras): the canonical views are rendered
+// at a token size.
+template <class Scalar>
+OrbitFit<Scalar> fit_orbit_shape(const std::vector<FrameCamera<Scalar>>& source) {
+  OrbitParams op;
+  op.width = op.height = 64;
+  return fit_orbit(source, op);
+}
+
 }  // namespace orbitforge

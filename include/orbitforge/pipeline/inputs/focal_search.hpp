@@ -52,10 +52,7 @@ OrbitFitScore orbit_fit_score(const std::vector<FrameCamera<Scalar>>& source, in
   OrbitFitScore s;
   OrbitFit<Scalar> fit;
   try {
-    OrbitParams op;
-    op.views = 361;
-    op.width = op.height = 64;
-    fit = fit_orbit(source, op);
+    fit = fit_orbit_shape(source);
   } catch (const std::exception& e) {
     s.why = e.what();
     return s;

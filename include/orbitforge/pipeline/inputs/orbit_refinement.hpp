@@ -81,12 +81,6 @@ inline std::vector<FrameCamera<double>> model_cameras(const ColmapModel& model) 
   return cams;
 }
 
-inline OrbitFit<double> fit_for_check(const std::vector<FrameCamera<double>>& cams) {
-  OrbitParams op;
-  op.width = op.height = 64;  // only the fit's geometry is used
-  return fit_orbit(cams, op);
-}
-
 }  // namespace orbit_refinement_detail
 
 // Checks the model's cameras against the orbit and refines them as `mode` says.
@@ -118,7 +112,7 @@ inline OrbitRefinement refine_model_on_orbit(const ColmapModel& model, OrbitRefi
   const std::vector<FrameCamera<double>> cams = model_cameras(model);
   OrbitFit<double> fit;
   try {
-    fit = fit_for_check(cams);
+    fit = fit_orbit_shape(cams);
   } catch (const Error& e) {
     return finish(std::string("no orbit to check against: ") + e.what());
   }
@@ -148,7 +142,7 @@ inline OrbitRefinement refine_model_on_orbit(const ColmapModel& model, OrbitRefi
   for (std::size_t j = 0; j < in.point_ids.size(); ++j) r.model.points[point_of.at(in.point_ids[j])].xyz = ba.points[j];
 
   const std::vector<FrameCamera<double>> refined = model_cameras(r.model);
-  const OrbitFit<double> fit_after = fit_for_check(refined);
+  const OrbitFit<double> fit_after = fit_orbit_shape(refined);
   r.after = check_orbit(refined, fit_after);
   r.applied = true;
   r.arc_after_deg = double(fit_after.diagnostics.source_span_deg);
