@@ -102,9 +102,9 @@ TEST_CASE("renderer refuses frames over the pixel and memory limits before alloc
     CHECK(out.frame.gaussians_visible > 0);
   }
   SECTION("tile lists over the memory limit are refused once counted") {
-    // 112 x 112: 7 x 7 tiles, about 0.4 MiB of frame buffers; 4000 wide splats list
-    // in every tile: 196000 entries, 1.5 MiB of lists.
-    const auto wide = limits_scene(4000, 0.0f);
+    // 112 x 112: 7 x 7 tiles, about 0.4 MiB of frame buffers; 8000 wide splats list
+    // in every tile: 392000 entries of 4 bytes, 1.5 MiB of lists.
+    const auto wide = limits_scene(8000, 0.0f);
     const auto cam = limits_camera(112, 112);
     l.max_memory_bytes = std::uint64_t(1) << 20;
     set_limits(l);

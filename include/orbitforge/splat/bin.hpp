@@ -5,8 +5,9 @@
 //   visible   radius > 0 and a non-empty rect (ProjectedSplats' inclusive pixel
 //             rectangle, already clipped to the image)
 //   order     rank -> Gaussian index, sorted by (depth, index): a stable LSD
-//             radix sort on the depth bits, so equal depths keep index order
-//             and the result is deterministic
+//             radix sort on the depth bits (parts sorted on their own threads,
+//             then merged), so equal depths keep index order and the result is
+//             the same for any thread count
 //   records   the visible Gaussians packed in rank order, one cache line each
 //             (float), so a tile streams through contiguous memory
 //   tiles     tile t's list is tile_ranks[tile_offsets[t] .. tile_offsets[t+1]),
@@ -80,19 +81,25 @@ struct BinWorkspace {
   std::vector<std::uint32_t> tile_offsets;     // [tiles + 1]
   std::vector<std::int32_t> tile_ranks;        // [pairs] ranks, per tile front to back
   // The same entries in rank-major order (rank r's tiles, ascending tile index):
-  // entry e of the tile lists is number entry_slot[e]; rank r owns
-  // [rank_offsets[r], rank_offsets[r+1]). The backward pass writes per-entry
-  // gradients there so that summing them per Gaussian streams through memory.
-  std::vector<std::uint32_t> entry_slot;       // [pairs]
+  // rank r owns slots [rank_offsets[r], rank_offsets[r+1]), the tiles of its
+  // tile box in row-major order (entry_slot). The backward pass writes
+  // per-entry gradients there so that summing them per Gaussian streams through
+  // memory.
   std::vector<std::uint32_t> rank_offsets;     // [visible + 1]
-  // [V] rank r's tile box (tile x0, y0, x1, y1; Gaussian index): its slots
-  // rank_offsets[r] .. are these tiles in row-major order.
+  // [V] rank r's tile box (tile x0, y0, x1, y1; Gaussian index).
   std::vector<std::array<std::int32_t, 5>> rank_boxes;
   // Timings of the last bin_splats call.
   double sort_ms = 0, bin_ms = 0;
 
   std::size_t visible() const { return order.size(); }
   std::size_t pairs() const { return tile_ranks.size(); }
+  // The rank-major slot of rank r's entry in tile (tx, ty), a tile of its box.
+  // Computed where it is needed (the backward) rather than stored per entry: a
+  // second per-tile stream of writes made the fill pass of binning slower.
+  std::uint32_t entry_slot(int tx, int ty, std::size_t r) const {
+    const auto& b = rank_boxes[r];
+    return rank_offsets[r] + std::uint32_t((ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0]));
+  }
 
   // Sort scratch (kept so that frames after the first do not allocate).
   using Key = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
@@ -133,19 +140,18 @@ inline Key sortable_key(Scalar v) {
   return (bits & sign) ? Key(~bits) : Key(bits | sign);
 }
 
-// Stable LSD radix sort of idx by key, 8 bits per pass; passes whose digit is the
-// same for every key are skipped (depths of a scene share their high bits).
+// Stable LSD radix sort of idx by key, 8 bits per pass, over n entries of caller
+// arrays with n entries of scratch each; passes whose digit is the same for
+// every key are skipped (depths of a scene share their high bits). Returns true
+// when the sorted result ended in the scratch arrays.
 template <class Key>
-void radix_sort_stable(std::vector<Key>& keys, std::vector<std::int32_t>& idx, std::vector<Key>& keys_tmp,
-                       std::vector<std::int32_t>& idx_tmp) {
-  const std::size_t n = keys.size();
-  keys_tmp.resize(n);
-  idx_tmp.resize(n);
+bool radix_sort_stable(Key* keys, std::int32_t* idx, Key* keys_tmp, std::int32_t* idx_tmp, std::size_t n) {
   constexpr int passes = int(sizeof(Key));
   std::uint32_t hist[passes][256];
   std::memset(hist, 0, sizeof(hist));
   for (std::size_t i = 0; i < n; ++i)
     for (int p = 0; p < passes; ++p) ++hist[p][(keys[i] >> (8 * p)) & 0xFF];
+  bool in_scratch = false;
   for (int p = 0; p < passes; ++p) {
     const int shift = 8 * p;
     if (n == 0 || hist[p][(keys[0] >> shift) & 0xFF] == n) continue;  // one bucket: no-op pass
@@ -160,8 +166,105 @@ void radix_sort_stable(std::vector<Key>& keys, std::vector<std::int32_t>& idx, s
       keys_tmp[dst] = keys[i];
       idx_tmp[dst] = idx[i];
     }
+    std::swap(keys, keys_tmp);
+    std::swap(idx, idx_tmp);
+    in_scratch = !in_scratch;
+  }
+  return in_scratch;
+}
+
+template <class Key>
+void radix_sort_stable(std::vector<Key>& keys, std::vector<std::int32_t>& idx, std::vector<Key>& keys_tmp,
+                       std::vector<std::int32_t>& idx_tmp) {
+  const std::size_t n = keys.size();
+  keys_tmp.resize(n);
+  idx_tmp.resize(n);
+  if (radix_sort_stable(keys.data(), idx.data(), keys_tmp.data(), idx_tmp.data(), n)) {
     keys.swap(keys_tmp);
     idx.swap(idx_tmp);
+  }
+}
+
+// How many of a's m keys are among the first d of the stable merge of a and b
+// (a's entries first on equal keys): the merge-path split, by bisection.
+template <class Key>
+std::size_t merge_path_split(const Key* a, std::size_t m, const Key* b, std::size_t n, std::size_t d) {
+  std::size_t lo = d > n ? d - n : 0, hi = std::min(d, m);
+  while (lo < hi) {
+    const std::size_t mid = lo + (hi - lo) / 2;
+    if (a[mid] <= b[d - 1 - mid]) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo;
+}
+
+// The same order as radix_sort_stable, on `threads` threads: contiguous parts
+// are sorted on their own, then merged pairwise, each merge cut into pieces at
+// merge-path splits so that every thread writes its own output range. A stable
+// sort of each part followed by stable merges (the left part first on ties) is
+// the stable sort of the whole, so the result does not depend on the thread
+// count. One synchronisation per merge round, not per digit: a block-parallel
+// LSD sort (per-block digit counts each pass) was slower on two cores.
+template <class Key>
+void radix_sort_stable_parallel(std::vector<Key>& keys, std::vector<std::int32_t>& idx, std::vector<Key>& keys_tmp,
+                                std::vector<std::int32_t>& idx_tmp, int threads) {
+  constexpr std::size_t min_part = 16384;  // below this a part's sort is too short to pay for a thread
+  const std::size_t n = keys.size();
+  const std::size_t parts = std::min<std::size_t>(std::size_t(std::max(1, threads)), n / min_part);
+  if (parts < 2) {
+    radix_sort_stable(keys, idx, keys_tmp, idx_tmp);
+    return;
+  }
+  keys_tmp.resize(n);
+  idx_tmp.resize(n);
+  std::vector<std::size_t> bounds(parts + 1);
+  for (std::size_t p = 0; p <= parts; ++p) bounds[p] = n * p / parts;
+  parallel_for(parts, threads, [&](std::size_t p, int) {
+    const std::size_t b = bounds[p], len = bounds[p + 1] - b;
+    if (radix_sort_stable(keys.data() + b, idx.data() + b, keys_tmp.data() + b, idx_tmp.data() + b, len)) {
+      std::copy_n(keys_tmp.data() + b, len, keys.data() + b);
+      std::copy_n(idx_tmp.data() + b, len, idx.data() + b);
+    }
+  });
+  while (bounds.size() > 2) {
+    const std::size_t runs = bounds.size() - 1, pairs = runs / 2;
+    const std::size_t pieces = std::max<std::size_t>(1, std::size_t(std::max(1, threads)) / pairs);
+    // Items: pieces of each pair's merge, then (odd run count) the last run copied through.
+    const std::size_t items = pairs * pieces + (runs % 2);
+    parallel_for(items, threads, [&](std::size_t item, int) {
+      if (item == pairs * pieces) {
+        const std::size_t b = bounds[runs - 1], len = bounds[runs] - b;
+        std::copy_n(keys.data() + b, len, keys_tmp.data() + b);
+        std::copy_n(idx.data() + b, len, idx_tmp.data() + b);
+        return;
+      }
+      const std::size_t pair = item / pieces, piece = item % pieces;
+      const std::size_t a0 = bounds[2 * pair], b0 = bounds[2 * pair + 1], e = bounds[2 * pair + 2];
+      const Key* ka = keys.data() + a0;
+      const Key* kb = keys.data() + b0;
+      const std::int32_t* ia = idx.data() + a0;
+      const std::int32_t* ib = idx.data() + b0;
+      const std::size_t m = b0 - a0, len_b = e - b0, total = e - a0;
+      const std::size_t d0 = total * piece / pieces, d1 = total * (piece + 1) / pieces;
+      std::size_t i = merge_path_split(ka, m, kb, len_b, d0), j = d0 - i;
+      Key* ko = keys_tmp.data() + a0;
+      std::int32_t* io = idx_tmp.data() + a0;
+      for (std::size_t d = d0; d < d1; ++d) {
+        if (j >= len_b || (i < m && ka[i] <= kb[j])) {
+          ko[d] = ka[i];
+          io[d] = ia[i++];
+        } else {
+          ko[d] = kb[j];
+          io[d] = ib[j++];
+        }
+      }
+    });
+    keys.swap(keys_tmp);
+    idx.swap(idx_tmp);
+    std::vector<std::size_t> merged;
+    for (std::size_t r = 0; r <= runs; r += 2) merged.push_back(bounds[r]);
+    if (merged.back() != n) merged.push_back(n);
+    bounds.swap(merged);
   }
 }
 
@@ -235,9 +338,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       ++k;
     }
   });
-  // One thread: a block-parallel version (per-block digit counts each pass) was
-  // slower on two cores at 100k-300k keys than this single pass of counts.
-  detail::radix_sort_stable(ws.keys_, ws.perm_, ws.keys_tmp_, ws.idx_tmp_);
+  detail::radix_sort_stable_parallel(ws.keys_, ws.perm_, ws.keys_tmp_, ws.idx_tmp_, threads);
   const auto t1 = clock::now();
 
   // Permute into rank order and count tile entries, then fill the lists: each
@@ -301,26 +402,21 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   for (std::size_t c = 0; c < chunks; ++c) ws.chunk_entries_[c + 1] += ws.chunk_entries_[c];
   // The lists' length depends on the scene (large splats at a large size list in
   // many tiles): check it against the memory limit now that it is known.
-  check_memory_request(total * (sizeof(std::int32_t) + sizeof(std::uint32_t)), "bin_splats: the tile lists of a ",
+  check_memory_request(total * sizeof(std::int32_t), "bin_splats: the tile lists of a ",
                        width, "x", height, " frame (", total, " entries of ", v, " visible Gaussians)");
   ws.tile_ranks.resize(std::size_t(total));
-  ws.entry_slot.resize(std::size_t(total));
   ws.rank_offsets.resize(v + 1);
   parallel_for(chunks, threads, [&](std::size_t c, int) {
     const auto [r0, r1] = chunk_range(c);
     std::uint32_t* cursor = ws.chunk_counts_.data() + c * tiles;
     std::int32_t* out = ws.tile_ranks.data();
-    std::uint32_t* slot = ws.entry_slot.data();
     std::uint32_t k = std::uint32_t(ws.chunk_entries_[c]);  // rank-major position of the next entry
     for (std::size_t r = r0; r < r1; ++r) {
       const auto box = ws.rank_boxes[r];
       ws.rank_offsets[r] = k;
+      k += std::uint32_t((box[3] - box[1] + 1) * (box[2] - box[0] + 1));
       for (int ty = box[1]; ty <= box[3]; ++ty)
-        for (int tx = box[0]; tx <= box[2]; ++tx) {
-          const std::uint32_t e = cursor[ty * tiles_x + tx]++;
-          out[e] = std::int32_t(r);
-          slot[e] = k++;
-        }
+        for (int tx = box[0]; tx <= box[2]; ++tx) out[cursor[ty * tiles_x + tx]++] = std::int32_t(r);
     }
   });
   const std::uint32_t k = std::uint32_t(total);

@@ -152,14 +152,18 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
   std::copy(share, share + 3, v_background);
   // Entries from tile_max on (ranks >= live_rank_end) are never replayed: their
   // slots are left unwritten and skipped by the sum.
-  const std::uint32_t* slot = bins.entry_slot.data() + off;
+  const int tile_col = t % g.tiles_x, tile_row = t / g.tiles_x;
   live_rank_end = tile_max < n ? ranks[tile_max] : std::numeric_limits<std::int32_t>::max();
 
   const B zero(Scalar(0)), one(Scalar(1));
   for (int j = tile_max - 1; j >= 0; --j) {
 #if defined(__GNUC__)
     // The records of a tile are scattered over the whole rank range.
-    if (j >= 8) __builtin_prefetch(&rec[ranks[j - 8]]);
+    if (j >= 8) {
+      __builtin_prefetch(&rec[ranks[j - 8]]);
+      __builtin_prefetch(&bins.rank_boxes[std::size_t(ranks[j - 8])]);
+      __builtin_prefetch(&bins.rank_offsets[std::size_t(ranks[j - 8])]);
+    }
 #endif
     const SplatRecord<Scalar>& G = rec[ranks[j]];
     const B jj = B(Scalar(j));
@@ -225,7 +229,7 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
     }
     // The conic's power factors (-1/2, -1, -1/2) are applied once per vector.
     const B rows[kGradFields] = {g_o, B(Scalar(-0.5)) * g_a, -g_b, B(Scalar(-0.5)) * g_c, g_mx, g_my, g_r, g_g, g_bl, g_z};
-    Scalar* out = pair_grad + std::size_t(slot[j]) * kGradFields;
+    Scalar* out = pair_grad + std::size_t(bins.entry_slot(tile_col, tile_row, std::size_t(ranks[j]))) * kGradFields;
     simd::hadd_rows(rows, kGradFields, out);
     // d power / d mean = -(d power / d (dx, dy)) = -ln 2 (d p2 / d (dx, dy)),
     // d p2 / d dx = 2 pxx dx + pxy dy, d p2 / d dy = pxy dx + 2 pyy dy.
