@@ -4,7 +4,7 @@
 //
 // On a short arc of a generated video the mapper's own focal estimate can be
 // far off (the frames are not a rigid capture, and nothing closes the loop),
-// and a wrong focal length turns the arc: too long a lens under-rotates it. The
+// and a wrong focal length turns the arc: too short a lens under-rotates it. The
 // method assumes the camera moves on a circle at constant height and speed,
 // looking at one point; the cameras mapped at the right focal length should
 // fit that assumption best. The stage maps once with the focal free, then again
@@ -101,6 +101,74 @@ struct FocalChoice {
   nlohmann::json json;    // the choice and every candidate with its score
 };
 
+// The search's decisions on scored candidates (anything with `focal` and
+// `score`), apart from the mapping so that they can be tested on their own:
+// map the mapper's estimate and its multiples, step beyond the grid while its
+// edge wins (focal_grid_extension), map the parabola's vertex about the best
+// (focal_parabola_vertex), keep the best (best_focal_candidate).
+
+// One step of the focal grid's extension.
+constexpr double kFocalGridStep = 1.15;
+
+// The lowest usable score wins; the first candidate (given, or the mapper's
+// own) when none is usable.
+template <class Candidate>
+std::size_t best_focal_candidate(const std::vector<Candidate>& cands) {
+  std::size_t best = 0;
+  for (std::size_t i = 1; i < cands.size(); ++i)
+    if (cands[i].score.usable && (!cands[best].score.usable || cands[i].score.value < cands[best].score.value))
+      best = i;
+  return best;
+}
+
+// The focal length to map next when the best usable candidate is the shortest
+// or the longest focal mapped so far: one more step (x 1.15) beyond it, since
+// the best score lies outside the grid. 0 when the best lies inside, or fewer
+// than two candidates are usable.
+template <class Candidate>
+double focal_grid_extension(const std::vector<Candidate>& cands) {
+  double lo = std::numeric_limits<double>::infinity(), hi = 0;
+  int usable = 0;
+  for (const auto& c : cands)
+    if (c.score.usable) {
+      lo = std::min(lo, c.focal);
+      hi = std::max(hi, c.focal);
+      ++usable;
+    }
+  if (usable < 2) return 0;
+  const auto& best = cands[best_focal_candidate(cands)];
+  if (best.focal == hi) return hi * kFocalGridStep;
+  if (best.focal == lo) return lo / kFocalGridStep;
+  return 0;
+}
+
+// The focal length to map last: the vertex of the parabola through the best
+// usable candidate and its usable neighbours in focal (score against log
+// focal), when it lies between the neighbours, away from all three; the grid's
+// spacing alone would leave up to half a step of focal error. 0 when the best
+// has no neighbour on one side or the parabola opens downwards.
+template <class Candidate>
+double focal_parabola_vertex(const std::vector<Candidate>& cands) {
+  const std::size_t best = best_focal_candidate(cands);
+  if (!cands[best].score.usable) return 0;
+  const Candidate* l = nullptr;
+  const Candidate* h = nullptr;
+  for (const auto& c : cands) {
+    if (!c.score.usable) continue;
+    if (c.focal < cands[best].focal && (!l || c.focal > l->focal)) l = &c;
+    if (c.focal > cands[best].focal && (!h || c.focal < h->focal)) h = &c;
+  }
+  if (!l || !h) return 0;
+  const Candidate& m = cands[best];
+  const double x0 = std::log(l->focal), x1 = std::log(m.focal), x2 = std::log(h->focal);
+  const double d0 = (m.score.value - l->score.value) / (x1 - x0), d1 = (h->score.value - m.score.value) / (x2 - x1);
+  const double curvature = (d1 - d0) / (x2 - x0);
+  if (!(curvature > 0)) return 0;
+  const double xv = std::clamp(0.5 * (x0 + x1) - d0 / (2 * curvature), x0, x2);
+  if (std::abs(xv - x1) > 0.01 && std::abs(xv - x0) > 0.01 && std::abs(xv - x2) > 0.01) return std::exp(xv);
+  return 0;
+}
+
 // Maps the source frames (features and matches already in colmap_dir/database.db)
 // and chooses the focal length: the user's when given, else the best-scoring of
 // the mapper's own estimate and its multiples p.focal_factors. `timed` runs a
@@ -164,31 +232,15 @@ inline FocalChoice map_source_frames(const std::string& colmap_dir, const std::s
     free.score = orbit_fit_score(model_source_cameras(free.dir), expected);
     cands.push_back(free);
     for (double f : p.focal_factors) fixed(free.focal * f, f, "orbit fit", cam.width, cam.height, p.camera_model);
-    // One more map at the vertex of the parabola through the best factor and its
-    // neighbours (score against log focal), when it lies between them: the grid's
-    // spacing alone would leave up to half a step of focal error.
-    std::vector<std::size_t> order;
-    for (std::size_t i = 0; i < cands.size(); ++i)
-      if (cands[i].score.usable) order.push_back(i);
-    std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return cands[a].focal < cands[b].focal; });
-    for (std::size_t k = 1; k + 1 < order.size(); ++k) {
-      const Candidate &l = cands[order[k - 1]], &m = cands[order[k]], &h = cands[order[k + 1]];
-      if (!(m.score.value <= l.score.value && m.score.value <= h.score.value)) continue;
-      const double x0 = std::log(l.focal), x1 = std::log(m.focal), x2 = std::log(h.focal);
-      const double d0 = (m.score.value - l.score.value) / (x1 - x0), d1 = (h.score.value - m.score.value) / (x2 - x1);
-      const double curvature = (d1 - d0) / (x2 - x0);
-      if (!(curvature > 0)) break;
-      const double xv = std::clamp(0.5 * (x0 + x1) - d0 / (2 * curvature), x0, x2);
-      if (std::abs(xv - x1) > 0.01 && std::abs(xv - x0) > 0.01 && std::abs(xv - x2) > 0.01)
-        fixed(std::exp(xv), std::exp(xv) / free.focal, "orbit fit (refined)", cam.width, cam.height, p.camera_model);
-      break;
+    for (int step = 0; step < 2; ++step) {  // at most 1.25 x 1.15^2 = 1.65 times the mapper's estimate
+      const double beyond = focal_grid_extension(cands);
+      if (beyond <= 0) break;
+      fixed(beyond, beyond / free.focal, "orbit fit (grid extended)", cam.width, cam.height, p.camera_model);
     }
+    const double vertex = focal_parabola_vertex(cands);
+    if (vertex > 0) fixed(vertex, vertex / free.focal, "orbit fit (refined)", cam.width, cam.height, p.camera_model);
   }
-  // The lowest score wins; the first candidate (given, or the mapper's own) when none is usable.
-  std::size_t best = 0;
-  for (std::size_t i = 1; i < cands.size(); ++i)
-    if (cands[i].score.usable && (!cands[best].score.usable || cands[i].score.value < cands[best].score.value))
-      best = i;
+  const std::size_t best = best_focal_candidate(cands);
   choice.model_dir = cands[best].dir;
   choice.focal_px = cands[best].focal;
   choice.how = given > 0 ? "given" : best == 0 ? "mapper" : "orbit fit";
