@@ -70,7 +70,10 @@ struct alignas(sizeof(Scalar) * 16) SplatRecord {
   // the backward pass skips a chunk's exp when no lane reaches it (in the
   // forward the extra test cost more than it saved).
   Scalar min_power;
-  Scalar pad_;
+  // The Gaussian's index as an int32 bit pattern in the slot's first bytes
+  // (record_index), so that the binning reads one record per Gaussian, not a
+  // record and a side array.
+  Scalar index_bits;
 };
 
 template <class Scalar>
@@ -106,12 +109,25 @@ struct BinWorkspace {
   std::vector<Key> keys_, keys_tmp_;
   std::vector<std::int32_t> perm_, idx_tmp_;
   std::vector<SplatRecord<Scalar>> packed_;
-  std::vector<std::array<std::int32_t, 5>> packed_boxes_;  // tile range x0, y0, x1, y1; index
   std::vector<std::uint32_t> chunk_counts_;  // [chunks][tiles] counts, then cursors
   std::vector<std::uint64_t> chunk_entries_; // [chunks + 1] rank-major entry offsets
 };
 
 namespace detail {
+
+template <class Scalar>
+inline void set_record_index(SplatRecord<Scalar>& rec, std::int32_t i) {
+  static_assert(sizeof(Scalar) >= sizeof(std::int32_t), "the index must fit in a Scalar slot");
+  rec.index_bits = Scalar(0);
+  std::memcpy(&rec.index_bits, &i, sizeof(i));
+}
+
+template <class Scalar>
+inline std::int32_t record_index(const SplatRecord<Scalar>& rec) {
+  std::int32_t i;
+  std::memcpy(&i, &rec.index_bits, sizeof(i));
+  return i;
+}
 
 // A lower bound of log2(1 / (255 opacity)): base-2 powers below it give
 // opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
@@ -288,9 +304,10 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.grid = TileGrid(width, height, tile_size);
   const TileGrid& g = ws.grid;
 
-  // Visible Gaussians are packed (in index order) with their sort keys and tile
-  // ranges; the sort then permutes whole records, so the input arrays are never
-  // read in random order. Contiguous index chunks count their visible Gaussians,
+  // Visible Gaussians are packed (in index order) with their sort keys; a
+  // record carries its Gaussian's index and pixel bounds (its tile range), and
+  // the sort then permutes whole records, so the input arrays are never read in
+  // random order. Contiguous index chunks count their visible Gaussians,
   // then pack them at their prefix-sum offsets (same result for any thread count).
   using Key = typename BinWorkspace<Scalar>::Key;
   const int ts = g.tile_size;
@@ -309,7 +326,6 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.keys_.resize(packed);
   ws.perm_.resize(packed);
   ws.packed_.resize(packed);
-  ws.packed_boxes_.resize(packed);
   parallel_for(in_chunks, threads, [&](std::size_t c, int) {
     std::size_t k = std::size_t(ws.chunk_entries_[c]);
     for (std::size_t i = n * c / in_chunks, end = n * (c + 1) / in_chunks; i < end; ++i) {
@@ -328,12 +344,11 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
       rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
       rec.min_power = detail::alpha_power_floor(rec.opacity);
-      rec.pad_ = Scalar(0);
+      detail::set_record_index(rec, std::int32_t(i));
       bool finite = true;
       for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
       ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
       ws.perm_[k] = std::int32_t(k);
-      ws.packed_boxes_[k] = {{x0 / ts, y0 / ts, x1 / ts, y1 / ts, std::int32_t(i)}};
       ws.keys_[k] = detail::sortable_key<Key>(rec.depth);
       ++k;
     }
@@ -363,13 +378,13 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       const std::size_t p = std::size_t(ws.perm_[r]);
 #if defined(__GNUC__)
       // The permuted reads miss the cache; ask for them well ahead.
-      if (r + 16 < r1) {
-        __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
-        __builtin_prefetch(&ws.packed_boxes_[std::size_t(ws.perm_[r + 16])]);
-      }
+      if (r + 16 < r1) __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
 #endif
-      ws.records[r] = ws.packed_[p];
-      const auto box = ws.packed_boxes_[p];
+      const SplatRecord<Scalar>& rec = ws.packed_[p];
+      ws.records[r] = rec;
+      // The tile box from the record's pixel-centre bounds (exact integers).
+      const std::array<std::int32_t, 5> box{{int(rec.x_lo) / ts, int(rec.y_lo) / ts, (int(rec.x_hi) - 1) / ts,
+                                             (int(rec.y_hi) - 1) / ts, detail::record_index(rec)}};
       ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
       for (int ty = box[1]; ty <= box[3]; ++ty)
