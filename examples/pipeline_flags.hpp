@@ -316,7 +316,7 @@ inline CameraStageParams camera_stage_params(const PipelineFlags& f) {
   cp.threads = f.params.threads;
   cp.focal_px = f.focal_px;
   cp.fov_deg = f.fov_deg;
-  if (f.focal_search) cp.focal_factors = {0.8, 0.9, 1.1, 1.25};
+  if (f.focal_search) cp.focal_factors = kFocalSearchFactors;
   cp.orbit_refine = parse_orbit_refine(f.orbit_refine);
   return cp;
 }

@@ -50,10 +50,8 @@ Candidate scored(double focal, double value) {
 
 TEST_CASE("focal search: a wrong focal estimate is recovered by the orbit fit", "[pipeline][cameras]") {
   using namespace focal_search_test;
-  // The search as the cameras stage runs it: the mapper's estimate and its
-  // default multiples, the grid stepped beyond its edge while the edge wins,
-  // the parabola's vertex, the best score.
-  const std::vector<double> factors = {0.8, 0.9, 1.1, 1.25};
+  // The search as the cameras stage runs it (search_focal_grid with the
+  // factors --focal-search sets), the mapping stood in for.
 #ifdef ORBITFORGE_TEST_QUICK
   const std::vector<unsigned> seeds = {21};
 #else
@@ -68,14 +66,9 @@ TEST_CASE("focal search: a wrong focal estimate is recovered by the orbit fit", 
     for (const double wrong : {0.7, 1.3}) {
       INFO("seed " << seed << ", mapper's estimate " << wrong << " x the truth");
       std::vector<Candidate> cands{map_at(sc, wrong * truth)};
-      for (double f : factors) cands.push_back(map_at(sc, wrong * truth * f));
-      for (int step = 0; step < 2; ++step) {
-        const double beyond = focal_grid_extension(cands);
-        if (beyond <= 0) break;
-        cands.push_back(map_at(sc, beyond));
-      }
-      const double vertex = focal_parabola_vertex(cands);
-      if (vertex > 0) cands.push_back(map_at(sc, vertex));
+      search_focal_grid(cands, kFocalSearchFactors, [&](double focal, const char*) {
+        cands.push_back(map_at(sc, focal));
+      });
       const std::size_t best = best_focal_candidate(cands);
       const Candidate& b = cands[best];
       std::printf("focal search, seed %u, estimate %.2f x truth: %zu maps, chosen %.1f px (truth %.0f), arc %.2f deg "

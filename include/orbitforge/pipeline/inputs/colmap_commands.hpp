@@ -25,6 +25,9 @@
 
 namespace orbitforge {
 
+// The multiples of the mapper's focal estimate the focal search maps at.
+inline const std::vector<double> kFocalSearchFactors = {0.8, 0.9, 1.1, 1.25};
+
 struct CameraStageParams {
   std::string video;            // a video file (decoded with ffmpeg), or
   std::string images;           // a folder of frames, in name order
@@ -44,7 +47,7 @@ struct CameraStageParams {
   // whose cameras fit an orbit best (pipeline/inputs/focal_search.hpp). Off by default:
   // on the recorded videos the search moved the focal further from the
   // reference model's as often as closer (docs/cameras.md).
-  std::vector<double> focal_factors;
+  std::vector<double> focal_factors;  // `--focal-search` sets kFocalSearchFactors
   // The chosen model's cameras refined with the orbit as a prior: when the
   // orbit check warns (default), always, or never (pipeline/inputs/orbit_refinement.hpp).
   OrbitRefine orbit_refine = OrbitRefine::flagged;

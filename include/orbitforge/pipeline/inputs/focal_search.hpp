@@ -102,10 +102,8 @@ struct FocalChoice {
 };
 
 // The search's decisions on scored candidates (anything with `focal` and
-// `score`), apart from the mapping so that they can be tested on their own:
-// map the mapper's estimate and its multiples, step beyond the grid while its
-// edge wins (focal_grid_extension), map the parabola's vertex about the best
-// (focal_parabola_vertex), keep the best (best_focal_candidate).
+// `score`), apart from the mapping so that they can be tested on their own
+// (search_focal_grid runs them in the stage's order).
 
 // One step of the focal grid's extension.
 constexpr double kFocalGridStep = 1.15;
@@ -167,6 +165,24 @@ double focal_parabola_vertex(const std::vector<Candidate>& cands) {
   const double xv = std::clamp(0.5 * (x0 + x1) - d0 / (2 * curvature), x0, x2);
   if (std::abs(xv - x1) > 0.01 && std::abs(xv - x0) > 0.01 && std::abs(xv - x2) > 0.01) return std::exp(xv);
   return 0;
+}
+
+// The search after the mapper's own estimate (cands.front()): its multiples
+// `factors`, the grid stepped beyond its edge while the edge wins (at most
+// twice: up to 1.25 x 1.15^2 = 1.65 times the estimate), then the parabola's
+// vertex. map(focal, how) maps at a focal length and appends the scored
+// candidate to cands.
+template <class Candidate, class Map>
+void search_focal_grid(std::vector<Candidate>& cands, const std::vector<double>& factors, Map&& map) {
+  const double estimate = cands.front().focal;
+  for (double f : factors) map(estimate * f, "orbit fit");
+  for (int step = 0; step < 2; ++step) {
+    const double beyond = focal_grid_extension(cands);
+    if (beyond <= 0) break;
+    map(beyond, "orbit fit (grid extended)");
+  }
+  const double vertex = focal_parabola_vertex(cands);
+  if (vertex > 0) map(vertex, "orbit fit (refined)");
 }
 
 // Maps the source frames (features and matches already in colmap_dir/database.db)
@@ -231,14 +247,9 @@ inline FocalChoice map_source_frames(const std::string& colmap_dir, const std::s
     free.focal = cam.params.at(0);
     free.score = orbit_fit_score(model_source_cameras(free.dir), expected);
     cands.push_back(free);
-    for (double f : p.focal_factors) fixed(free.focal * f, f, "orbit fit", cam.width, cam.height, p.camera_model);
-    for (int step = 0; step < 2; ++step) {  // at most 1.25 x 1.15^2 = 1.65 times the mapper's estimate
-      const double beyond = focal_grid_extension(cands);
-      if (beyond <= 0) break;
-      fixed(beyond, beyond / free.focal, "orbit fit (grid extended)", cam.width, cam.height, p.camera_model);
-    }
-    const double vertex = focal_parabola_vertex(cands);
-    if (vertex > 0) fixed(vertex, vertex / free.focal, "orbit fit (refined)", cam.width, cam.height, p.camera_model);
+    search_focal_grid(cands, p.focal_factors, [&](double focal, const char* how) {
+      fixed(focal, focal / free.focal, how, cam.width, cam.height, p.camera_model);
+    });
   }
   const std::size_t best = best_focal_candidate(cands);
   choice.model_dir = cands[best].dir;
