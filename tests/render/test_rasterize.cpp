@@ -213,33 +213,45 @@ TEST_CASE("binning on several threads gives the same lists as on one", "[render]
     CHECK(many.tile_ranks == one.tile_ranks);
     CHECK(many.rank_offsets == one.rank_offsets);
     CHECK(many.rank_boxes == one.rank_boxes);
-    // The two layouts index the same entries: the slots of the tile lists'
-    // entries are a permutation of [0, pairs).
-    std::vector<char> seen(many.pairs(), 0);
+    // The tile lists' entries have distinct rank-major slots in [0, slots).
+    std::vector<char> seen(many.slots(), 0);
     const TileGrid& g = many.grid;
     for (int t = 0; t < g.tile_count(); ++t)
       for (std::uint32_t e = many.tile_offsets[std::size_t(t)]; e < many.tile_offsets[std::size_t(t) + 1]; ++e) {
         const std::uint32_t slot = many.entry_slot(t % g.tiles_x, t / g.tiles_x, std::size_t(many.tile_ranks[e]));
-        REQUIRE(slot < many.pairs());
+        REQUIRE(slot < many.slots());
         seen[slot] = 1;
       }
     CHECK(std::count(seen.begin(), seen.end(), 1) == std::ptrdiff_t(many.pairs()));
   }
 }
 
-TEST_CASE("the tile lists and their rank-major slots are those of a plain enumeration", "[render]") {
-  // Every tile lists, front to back, the ranks whose tile box covers it; a
-  // rank's slots number its box's tiles in row-major order, ranks in order.
-  const int w = 200, h = 72;  // a partial last column and row of tiles
-  const auto s = random_splats<float>(9000, w, h, 5);
-  for (int threads : {1, 2}) {
-    INFO("threads " << threads);
-    BinWorkspace<float> bins;
+TEMPLATE_TEST_CASE("the tile lists: the tiles each ellipse reaches, with slots over its whole tile box", "[render]",
+                   float, double) {
+  // A rank's slots number its tile box's tiles in row-major order, ranks in
+  // order, listed or not. A tile lists, front to back, the ranks whose
+  // p2 >= min_power ellipse reaches it: every tile with a pixel centre (in the
+  // rect) inside the ellipse is listed (else the kernels would miss a pixel),
+  // and every listed tile has a pixel column whose band of rows in the tile
+  // meets the ellipse (the corners of a tilted or long ellipse's box are not
+  // listed; a box of one row or column lists all its tiles). Both evaluated
+  // here in double, from the records' fields. Boxes of up to 8 x 16 tiles keep
+  // their rows' trims, larger ones compute them again: the second scene's
+  // large splats have both kinds.
+  struct Scene { int w, h, n; double sigma_max; };
+  std::vector<std::pair<Scene, int>> runs;  // scene, threads
+  for (const Scene sc : {Scene{200, 72, 9000, 12}, Scene{256, 200, 1500, 40}})
+    for (int threads : {1, 2}) runs.emplace_back(sc, threads);
+  for (const auto& [sc, threads] : runs) {
+    INFO("scene " << sc.w << "x" << sc.h << ", threads " << threads);
+    const int w = sc.w, h = sc.h;  // the first: a partial last column and row of tiles
+    RandomSplatOptions o;
+    o.sigma_max = sc.sigma_max;
+    const auto s = random_splats<TestType>(std::size_t(sc.n), w, h, 5, o);
+    BinWorkspace<TestType> bins;
     bin_splats(s, w, h, 16, bins, threads);
     const TileGrid& g = bins.grid;
-    REQUIRE(bins.visible() > 4096);  // more than one rank chunk on two threads
-    std::vector<std::vector<std::int32_t>> ranks(std::size_t(g.tile_count()));
-    std::vector<std::vector<std::uint32_t>> slots(std::size_t(g.tile_count()));
+    if (sc.n > 4096) REQUIRE(bins.visible() > 4096);  // more than one rank chunk on two threads
     std::uint32_t k = 0;
     for (std::size_t r = 0; r < bins.visible(); ++r) {
       const auto& b = bins.rank_boxes[r];
@@ -251,21 +263,105 @@ TEST_CASE("the tile lists and their rank-major slots are those of a plain enumer
       CHECK(b[3] == s.rect_y1[i] / 16);
       if (r > 0) CHECK(bins.records[r - 1].depth <= bins.records[r].depth);
       CHECK(bins.rank_offsets[r] == k);
+      k += std::uint32_t((b[2] - b[0] + 1) * (b[3] - b[1] + 1));
+    }
+    REQUIRE(bins.slots() == k);
+    // listed[r] = the tiles listing rank r
+    std::vector<std::vector<int>> listed(bins.visible());
+    for (int t = 0; t < g.tile_count(); ++t) {
+      const int tx = t % g.tiles_x, ty = t / g.tiles_x;
+      for (std::uint32_t e = bins.tile_offsets[std::size_t(t)]; e < bins.tile_offsets[std::size_t(t) + 1]; ++e) {
+        const std::size_t r = std::size_t(bins.tile_ranks[e]);
+        if (e > bins.tile_offsets[std::size_t(t)]) CHECK(bins.tile_ranks[e - 1] < bins.tile_ranks[e]);
+        const auto& b = bins.rank_boxes[r];
+        REQUIRE((tx >= b[0] && tx <= b[2] && ty >= b[1] && ty <= b[3]));
+        CHECK(bins.entry_slot(tx, ty, r) ==
+              bins.rank_offsets[r] + std::uint32_t((ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0])));
+        listed[r].push_back(t);
+      }
+    }
+    std::size_t boxes_tiles = 0, reached = 0, wrongly_listed = 0, missed = 0;
+    for (std::size_t r = 0; r < bins.visible(); ++r) {
+      const auto& rec = bins.records[r];
+      const auto& b = bins.rank_boxes[r];
+      const double a = -double(rec.pxx), hh = -0.5 * double(rec.pxy), c = -double(rec.pyy), mu = -double(rec.min_power);
+      auto q = [&](double dx, double dy) { return a * dx * dx + 2 * hh * dx * dy + c * dy * dy; };
       for (int ty = b[1]; ty <= b[3]; ++ty)
         for (int tx = b[0]; tx <= b[2]; ++tx) {
-          ranks[std::size_t(ty * g.tiles_x + tx)].push_back(std::int32_t(r));
-          slots[std::size_t(ty * g.tiles_x + tx)].push_back(k++);
+          ++boxes_tiles;
+          const int x0 = std::max(tx * 16, int(rec.x_lo)), x1 = std::min(tx * 16 + 15, int(rec.x_hi) - 1);
+          const int y0 = std::max(ty * 16, int(rec.y_lo)), y1 = std::min(ty * 16 + 15, int(rec.y_hi) - 1);
+          bool pixel_inside = false, band_meets = false;
+          for (int x = x0; x <= x1; ++x) {
+            const double dx = x + 0.5 - double(rec.mean_x);
+            // The smallest q over the column's continuous band of rows, with
+            // the binning's margins: the column moved either way by 0.02 pixel
+            // and 2^-20 of the mean's coordinate, and mu 0.1 % larger.
+            const double margin = 0.02 + std::abs(double(rec.mean_x)) / 1048576 + 1e-9;
+            const double lo = y0 + 0.5 - double(rec.mean_y), hi = y1 + 0.5 - double(rec.mean_y);
+            for (const double dxm : {dx - margin, dx, dx + margin}) {
+              const double dy_min = std::min(hi, std::max(lo, -hh * dxm / c));
+              band_meets = band_meets || q(dxm, dy_min) <= mu * 1.0011 + 1e-9;
+            }
+            for (int y = y0; y <= y1 && !pixel_inside; ++y) pixel_inside = q(dx, y + 0.5 - double(rec.mean_y)) <= mu;
+          }
+          const bool is_listed =
+              std::find(listed[r].begin(), listed[r].end(), ty * g.tiles_x + tx) != listed[r].end();
+          reached += is_listed;
+          missed += pixel_inside && !is_listed;
+          // A box of one row or one column keeps all its tiles.
+          if (b[1] == b[3] || b[0] == b[2]) wrongly_listed += !is_listed;
+          else wrongly_listed += is_listed && !band_meets;
         }
     }
-    CHECK(bins.rank_offsets[bins.visible()] == k);
-    REQUIRE(bins.pairs() == k);
-    for (int t = 0; t < g.tile_count(); ++t) {
-      const std::uint32_t b = bins.tile_offsets[std::size_t(t)], e = bins.tile_offsets[std::size_t(t) + 1];
-      REQUIRE(e - b == ranks[std::size_t(t)].size());
-      CHECK(std::equal(bins.tile_ranks.begin() + b, bins.tile_ranks.begin() + e, ranks[std::size_t(t)].begin()));
-      for (std::uint32_t x = b; x < e; ++x)
-        CHECK(bins.entry_slot(t % g.tiles_x, t / g.tiles_x, std::size_t(bins.tile_ranks[x])) == slots[std::size_t(t)][x - b]);
-    }
+    CHECK(missed == 0);
+    CHECK(wrongly_listed == 0);
+    CHECK(reached == bins.pairs());
+    // These random splats have square 3-sigma rects, so many box tiles go.
+    CHECK(double(bins.pairs()) < 0.8 * double(boxes_tiles));
+    const auto recompute = std::count(bins.rank_trims.begin(), bins.rank_trims.end(), detail::kTrimsRecompute);
+    const auto whole = std::count(bins.rank_trims.begin(), bins.rank_trims.end(), std::uint64_t(0));
+    if (sc.sigma_max > 12) CHECK(recompute > 0);
+    CHECK(std::size_t(recompute + whole) < bins.visible());
+  }
+}
+
+TEMPLATE_TEST_CASE("tile rows of an ellipse: exact spans of a tilted, a thin and a flat ellipse", "[render]", float,
+                   double) {
+  // A Gaussian whose ellipse is the unit-free q(dx, dy) = a dx^2 + 2 h dx dy +
+  // c dy^2 <= mu, checked against spans counted by hand from the chords.
+  using S = TestType;
+  SplatRecord<S> rec{};
+  auto set = [&](double mx, double my, double a, double hh, double c, double mu, int x0, int x1, int y0, int y1) {
+    rec.mean_x = S(mx); rec.mean_y = S(my);
+    rec.pxx = S(-a); rec.pxy = S(-2 * hh); rec.pyy = S(-c); rec.min_power = S(-mu);
+    rec.x_lo = S(x0); rec.x_hi = S(x1 + 1); rec.y_lo = S(y0); rec.y_hi = S(y1 + 1);
+  };
+  SECTION("an axis-aligned ellipse 40 wide, 8 tall, in a 64x64 box: one row of tiles") {
+    set(32, 32, 1.0 / 400, 0, 1.0 / 16, 1, 0, 63, 0, 63);  // half-widths 20 and 4
+    const detail::TileRowSpans spans(rec, 16);
+    CHECK(spans.row(0, 0, 3).first > spans.row(0, 0, 3).second);
+    CHECK(spans.row(1, 0, 3) == std::pair<int, int>(0, 3));  // x 12.5..51.5 -> tiles 0..3
+    CHECK(spans.row(2, 0, 3) == std::pair<int, int>(0, 3));  // rows 32..35 still reach
+    CHECK(spans.row(3, 0, 3).first > spans.row(3, 0, 3).second);
+  }
+  SECTION("a thin ellipse along the diagonal lists 10 of its box's 16 tiles") {
+    // Long axis (1,1)/sqrt2 with half length 40 (x and y from about 3.7 to
+    // 60.3), short half length 2: about 2.8 pixels either side of x = y. Row 0 (y 4..15.5) spans x 1.2..18.3, row 1 (y 16.5..31.5) x
+    // 13.7..34.3, and the lower rows mirror them.
+    const double l1 = 1.0 / 1600, l2 = 1.0 / 4;  // 1 / half-lengths^2
+    set(32, 32, 0.5 * (l1 + l2), 0.5 * (l1 - l2), 0.5 * (l1 + l2), 1, 0, 63, 0, 63);
+    const detail::TileRowSpans spans(rec, 16);
+    CHECK(spans.row(0, 0, 3) == std::pair<int, int>(0, 1));
+    CHECK(spans.row(1, 0, 3) == std::pair<int, int>(0, 2));
+    CHECK(spans.row(2, 0, 3) == std::pair<int, int>(1, 3));
+    CHECK(spans.row(3, 0, 3) == std::pair<int, int>(2, 3));
+  }
+  SECTION("mu < 0 (min_power > 0): listed nowhere; a degenerate form: the whole box row") {
+    set(8, 8, 1, 0, 1, -1, 0, 15, 0, 15);
+    CHECK(detail::TileRowSpans(rec, 16).row(0, 0, 0).first > 0);
+    set(8, 8, 1, 1, 1, 1, 0, 31, 0, 15);  // det = 0
+    CHECK(detail::TileRowSpans(rec, 16).row(0, 0, 1) == std::pair<int, int>(0, 1));
   }
 }
 

@@ -11,8 +11,10 @@
 //   records   the visible Gaussians packed in rank order, one cache line each
 //             (float), so a tile streams through contiguous memory
 //   tiles     tile t's list is tile_ranks[tile_offsets[t] .. tile_offsets[t+1]),
-//             ascending rank = front to back; a Gaussian is listed in exactly
-//             the tiles its rect touches (tiles it cannot reach are skipped)
+//             ascending rank = front to back; a Gaussian is listed in the
+//             tiles of its rect that its alpha >= 1/255 ellipse reaches
+//             (detail::TileRowSpans: per row of tiles, so a tilted or long
+//             ellipse is not listed in its box's corners)
 //
 // Built with a counting pass and a prefix sum into caller-owned buffers that are
 // reused across frames: no allocation once the workspace has grown. The counting
@@ -31,6 +33,8 @@
 #include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/splat/projected.hpp"
+#include "orbitforge/splat/splat_record.hpp"
+#include "orbitforge/splat/tile_rows.hpp"
 
 namespace orbitforge {
 
@@ -51,31 +55,6 @@ struct TileGrid {
   int tile_y0(int t) const { return (t / tiles_x) * tile_size; }
 };
 
-// One visible Gaussian as the rasterizer reads it. The rect is kept as
-// pixel-centre bounds: pixel x is inside iff x_lo < x + 0.5 < x_hi, i.e.
-// x_lo = rect_x0, x_hi = rect_x1 + 1 (exact in float for any image size).
-template <class Scalar>
-struct alignas(sizeof(Scalar) * 16) SplatRecord {
-  Scalar mean_x, mean_y;
-  // The Gaussian's power in base 2, p2 = pxx dx^2 + pxy dx dy + pyy dy^2 with
-  // opacity 2^p2 = opacity exp(power): the conic (a, b, c) times -log2(e) / 2,
-  // -log2(e), -log2(e) / 2. Base 2 saves the exp's range reduction.
-  Scalar pxx, pxy, pyy;
-  Scalar opacity;
-  Scalar color_r, color_g, color_b;
-  Scalar depth;
-  Scalar x_lo, x_hi, y_lo, y_hi;
-  // Below this p2, opacity 2^p2 < 1/255 for certain (a lower bound of
-  // log2(1 / (255 opacity)), see detail::alpha_power_floor):
-  // the backward pass skips a chunk's exp when no lane reaches it (in the
-  // forward the extra test cost more than it saved).
-  Scalar min_power;
-  // The Gaussian's index as an int32 bit pattern in the slot's first bytes
-  // (record_index), so that the binning reads one record per Gaussian, not a
-  // record and a side array.
-  Scalar index_bits;
-};
-
 template <class Scalar>
 struct BinWorkspace {
   TileGrid grid;
@@ -85,17 +64,22 @@ struct BinWorkspace {
   std::vector<std::int32_t> tile_ranks;        // [pairs] ranks, per tile front to back
   // The same entries in rank-major order (rank r's tiles, ascending tile index):
   // rank r owns slots [rank_offsets[r], rank_offsets[r+1]), the tiles of its
-  // tile box in row-major order (entry_slot). The backward pass writes
-  // per-entry gradients there so that summing them per Gaussian streams through
-  // memory.
+  // tile box in row-major order (entry_slot), whether or not its ellipse
+  // reaches them (detail::TileRowSpans says which are listed). The backward
+  // pass writes per-entry gradients there so that summing them per Gaussian
+  // streams through memory.
   std::vector<std::uint32_t> rank_offsets;     // [visible + 1]
   // [V] rank r's tile box (tile x0, y0, x1, y1; Gaussian index).
   std::vector<std::array<std::int32_t, 5>> rank_boxes;
+  // [V] which tiles of rank r's box list it (detail::encode_row_trims).
+  std::vector<std::uint64_t> rank_trims;
   // Timings of the last bin_splats call.
   double sort_ms = 0, bin_ms = 0;
 
   std::size_t visible() const { return order.size(); }
   std::size_t pairs() const { return tile_ranks.size(); }
+  // Rank-major slots: every tile of every box, listed or not (>= pairs()).
+  std::size_t slots() const { return rank_offsets.empty() ? 0 : std::size_t(rank_offsets.back()); }
   // The rank-major slot of rank r's entry in tile (tx, ty), a tile of its box.
   // Computed where it is needed (the backward) rather than stored per entry: a
   // second per-tile stream of writes made the fill pass of binning slower.
@@ -103,48 +87,43 @@ struct BinWorkspace {
     const auto& b = rank_boxes[r];
     return rank_offsets[r] + std::uint32_t((ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0]));
   }
+  // Calls f(tx, ty, slot) for each tile that lists rank r, row by row.
+  template <class F>
+  void for_each_listed_tile(std::size_t r, F&& f) const {
+    const auto& b = rank_boxes[r];
+    const std::uint64_t trims = rank_trims[r];
+    const int box_w = b[2] - b[0] + 1;
+    std::uint32_t row_slot = rank_offsets[r];
+    if (trims == 0) {
+      for (int ty = b[1]; ty <= b[3]; ++ty)
+        for (int tx = b[0]; tx <= b[2]; ++tx) f(tx, ty, row_slot++);
+      return;
+    }
+    if (trims == detail::kTrimsRecompute) {
+      const detail::TileRowSpans spans(records[r], grid.tile_size);
+      for (int ty = b[1]; ty <= b[3]; ++ty, row_slot += std::uint32_t(box_w)) {
+        const auto [tx0, tx1] = spans.row(ty, b[0], b[2]);
+        for (int tx = tx0; tx <= tx1; ++tx) f(tx, ty, row_slot + std::uint32_t(tx - b[0]));
+      }
+      return;
+    }
+    for (int ty = b[1], i = 0; ty <= b[3]; ++ty, ++i, row_slot += std::uint32_t(box_w)) {
+      const int tx0 = b[0] + int((trims >> (8 * i)) & 15u), tx1 = b[2] - int((trims >> (8 * i + 4)) & 15u);
+      for (int tx = tx0; tx <= tx1; ++tx) f(tx, ty, row_slot + std::uint32_t(tx - b[0]));
+    }
+  }
 
   // Sort scratch (kept so that frames after the first do not allocate).
   using Key = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
   std::vector<Key> keys_, keys_tmp_;
   std::vector<std::int32_t> perm_, idx_tmp_;
   std::vector<SplatRecord<Scalar>> packed_;
+  std::vector<std::uint64_t> packed_trims_;
   std::vector<std::uint32_t> chunk_counts_;  // [chunks][tiles] counts, then cursors
   std::vector<std::uint64_t> chunk_entries_; // [chunks + 1] rank-major entry offsets
 };
 
 namespace detail {
-
-template <class Scalar>
-inline void set_record_index(SplatRecord<Scalar>& rec, std::int32_t i) {
-  static_assert(sizeof(Scalar) >= sizeof(std::int32_t), "the index must fit in a Scalar slot");
-  rec.index_bits = Scalar(0);
-  std::memcpy(&rec.index_bits, &i, sizeof(i));
-}
-
-template <class Scalar>
-inline std::int32_t record_index(const SplatRecord<Scalar>& rec) {
-  std::int32_t i;
-  std::memcpy(&i, &rec.index_bits, sizeof(i));
-  return i;
-}
-
-// A lower bound of log2(1 / (255 opacity)): base-2 powers below it give
-// opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
-// x = 255 opacity = m 2^e, m in [1, 2), log2 x <= e + (m - 1) + 0.0861 (the
-// largest gap between log2 m and its chord); 1e-4 more covers rounding.
-template <class Scalar>
-inline Scalar alpha_power_floor(Scalar opacity) {
-  if (!(opacity > Scalar(0))) return std::numeric_limits<Scalar>::infinity();
-  int e = 0;
-  const Scalar m = Scalar(2) * std::frexp(Scalar(255) * opacity, &e);  // in [1, 2)
-  const Scalar log2_upper = Scalar(e - 1) + (m - Scalar(1)) + Scalar(0.0861);
-  return -log2_upper - Scalar(1e-4);
-}
-
-// exp(power) = 2^(power log2(e)): the conic's coefficients in base 2.
-template <class Scalar>
-constexpr Scalar kHalfLog2e = Scalar(0.72134752044448170368);
 
 // Order-preserving map from an IEEE float to an unsigned key (negative values
 // flip all bits, positive ones only the sign bit).
@@ -326,8 +305,14 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.keys_.resize(packed);
   ws.perm_.resize(packed);
   ws.packed_.resize(packed);
+  ws.packed_trims_.resize(packed);
   parallel_for(in_chunks, threads, [&](std::size_t c, int) {
-    std::size_t k = std::size_t(ws.chunk_entries_[c]);
+    std::size_t k = std::size_t(ws.chunk_entries_[c]), k_trimmed = k;
+    auto trim = [&](std::size_t from, std::size_t to) {
+      detail::encode_row_trims_lanes<simd::native_batch<Scalar>>(ws.packed_.data() + from, to - from, ts,
+                                                                  ws.packed_trims_.data() + from);
+      k_trimmed = to;
+    };
     for (std::size_t i = n * c / in_chunks, end = n * (c + 1) / in_chunks; i < end; ++i) {
       if (!visible(i)) continue;
       const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
@@ -351,7 +336,11 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       ws.perm_[k] = std::int32_t(k);
       ws.keys_[k] = detail::sortable_key<Key>(rec.depth);
       ++k;
+      // Which tiles of its box list each record, 64 records at a time while
+      // they are in cache.
+      if (k - k_trimmed == 64) trim(k_trimmed, k);
     }
+    trim(k_trimmed, k);
   });
   detail::radix_sort_stable_parallel(ws.keys_, ws.perm_, ws.keys_tmp_, ws.idx_tmp_, threads);
   const auto t1 = clock::now();
@@ -364,6 +353,8 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.records.resize(v);
   ws.order.resize(v);
   ws.rank_boxes.resize(v);
+  ws.rank_trims.resize(v);
+  ws.rank_offsets.resize(v + 1);  // read (not yet set) by for_each_listed_tile in the counting pass
   const std::size_t tiles = std::size_t(g.tile_count());
   const int tiles_x = g.tiles_x;
   const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), v / 4096));
@@ -378,7 +369,10 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       const std::size_t p = std::size_t(ws.perm_[r]);
 #if defined(__GNUC__)
       // The permuted reads miss the cache; ask for them well ahead.
-      if (r + 16 < r1) __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
+      if (r + 16 < r1) {
+        __builtin_prefetch(&ws.packed_[std::size_t(ws.perm_[r + 16])]);
+        __builtin_prefetch(&ws.packed_trims_[std::size_t(ws.perm_[r + 16])]);
+      }
 #endif
       const SplatRecord<Scalar>& rec = ws.packed_[p];
       ws.records[r] = rec;
@@ -387,8 +381,8 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
                                              (int(rec.y_hi) - 1) / ts, detail::record_index(rec)}};
       ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
-      for (int ty = box[1]; ty <= box[3]; ++ty)
-        for (int tx = box[0]; tx <= box[2]; ++tx) ++counts[ty * tiles_x + tx];
+      ws.rank_trims[r] = ws.packed_trims_[p];
+      ws.for_each_listed_tile(r, [&](int tx, int ty, std::uint32_t) { ++counts[ty * tiles_x + tx]; });
       entries += std::uint64_t(box[3] - box[1] + 1) * std::uint64_t(box[2] - box[0] + 1);
     }
     ws.chunk_entries_[c + 1] = entries;
@@ -415,12 +409,13 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
     }
   }
   for (std::size_t c = 0; c < chunks; ++c) ws.chunk_entries_[c + 1] += ws.chunk_entries_[c];
+  const std::uint64_t slots = ws.chunk_entries_[chunks];
+  ensure(slots < (std::uint64_t(1) << 32), "bin_splats: more than 2^32 tile-box slots");
   // The lists' length depends on the scene (large splats at a large size list in
   // many tiles): check it against the memory limit now that it is known.
   check_memory_request(total * sizeof(std::int32_t), "bin_splats: the tile lists of a ",
                        width, "x", height, " frame (", total, " entries of ", v, " visible Gaussians)");
   ws.tile_ranks.resize(std::size_t(total));
-  ws.rank_offsets.resize(v + 1);
   parallel_for(chunks, threads, [&](std::size_t c, int) {
     const auto [r0, r1] = chunk_range(c);
     std::uint32_t* cursor = ws.chunk_counts_.data() + c * tiles;
@@ -430,12 +425,10 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       const auto box = ws.rank_boxes[r];
       ws.rank_offsets[r] = k;
       k += std::uint32_t((box[3] - box[1] + 1) * (box[2] - box[0] + 1));
-      for (int ty = box[1]; ty <= box[3]; ++ty)
-        for (int tx = box[0]; tx <= box[2]; ++tx) out[cursor[ty * tiles_x + tx]++] = std::int32_t(r);
+      ws.for_each_listed_tile(r, [&](int tx, int ty, std::uint32_t) { out[cursor[ty * tiles_x + tx]++] = std::int32_t(r); });
     }
   });
-  const std::uint32_t k = std::uint32_t(total);
-  ws.rank_offsets[v] = k;
+  ws.rank_offsets[v] = std::uint32_t(slots);
   const auto t2 = clock::now();
   ws.sort_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   ws.bin_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();

@@ -102,7 +102,7 @@ struct RasterWorkspace {
   std::vector<WorkerStats> worker_stats;
   // Backward only.
   std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
-  std::vector<Scalar> pair_grad;                    // [pairs][10] rank-major (BinWorkspace::entry_slot)
+  std::vector<Scalar> pair_grad;                    // [slots][10] rank-major (BinWorkspace::entry_slot)
   std::vector<std::int32_t> live_rank_end;          // [tiles] entries of rank >= this were not replayed
   std::vector<Scalar> tile_background;              // [tiles][3] each tile's share of dL/d(background)
 };

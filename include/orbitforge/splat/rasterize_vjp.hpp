@@ -269,9 +269,9 @@ void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Sca
   const std::size_t lanes = std::size_t(ws.lanes.chunks) * B::size;
   ws.worker_scratch.resize(std::size_t(threads));
   for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
-  check_memory_request(std::uint64_t(bins.pairs()) * detail::kGradFields * sizeof(Scalar),
-                       "rasterize_vjp: the per-entry gradients of ", bins.pairs(), " tile-list entries");
-  ws.pair_grad.resize(bins.pairs() * detail::kGradFields);
+  check_memory_request(std::uint64_t(bins.slots()) * detail::kGradFields * sizeof(Scalar),
+                       "rasterize_vjp: the per-entry gradients of ", bins.slots(), " tile-box slots");
+  ws.pair_grad.resize(bins.slots() * detail::kGradFields);
   ws.live_rank_end.resize(std::size_t(g.tile_count()));
   ws.tile_background.resize(3 * std::size_t(g.tile_count()));
 
@@ -288,7 +288,8 @@ void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Sca
 
   // Sum each Gaussian's per-tile slots (stored rank-major, in tile order:
   // deterministic), streaming through pair_grad; ranks split across workers.
-  // Rank r's slots are the tiles of its tile box in row-major order (bin_splats).
+  // Rank r's slots are the tiles of its tile box in row-major order (bin_splats);
+  // only those of the tiles that list it are written.
   const std::size_t visible = bins.visible();
   constexpr std::size_t F = detail::kGradFields;
   ProjectedSplatsGrad<Scalar>& gr = out.splats;
@@ -302,13 +303,10 @@ void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Sca
     const Scalar* pg = ws.pair_grad.data();
     for (std::size_t r = lo; r < hi; ++r) {
       Scalar sum[F] = {};
-      const auto& box = bins.rank_boxes[r];
-      std::size_t k = bins.rank_offsets[r];
-      for (int ty = box[1]; ty <= box[3]; ++ty)
-        for (int tx = box[0]; tx <= box[2]; ++tx, ++k) {
-          if (std::int32_t(r) >= ws.live_rank_end[std::size_t(ty) * std::size_t(g.tiles_x) + std::size_t(tx)]) continue;
-          for (std::size_t f = 0; f < F; ++f) sum[f] += pg[k * F + f];
-        }
+      bins.for_each_listed_tile(r, [&](int tx, int ty, std::uint32_t k) {
+        if (std::int32_t(r) >= ws.live_rank_end[std::size_t(ty) * std::size_t(g.tiles_x) + std::size_t(tx)]) return;
+        for (std::size_t f = 0; f < F; ++f) sum[f] += pg[std::size_t(k) * F + f];
+      });
       const std::size_t i = std::size_t(bins.order[r]);
       for (std::size_t f = 0; f < F; ++f) fields[f][i] = sum[f];
     }
