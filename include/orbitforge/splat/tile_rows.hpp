@@ -164,7 +164,10 @@ void encode_row_trims_lanes(const SplatRecord<Scalar>* recs, std::size_t count, 
     // Without a branch per lane: a box of one row or column keeps the whole box
     // (0), one too large for the codes or not an ellipse recomputes (all ones).
     const auto whole = (rows == one) | (cols == one);
-    const auto recompute = !whole & ((rows > B(Scalar(kTrimRows))) | (cols > B(Scalar(kTrimCols))) | !usable);
+    const auto partial = !whole;
+    const auto too_large = (rows > B(Scalar(kTrimRows))) | (cols > B(Scalar(kTrimCols)));
+    const auto not_ellipse = !usable;
+    const auto recompute = partial & (too_large | not_ellipse);
     const B all_ones = B(Scalar(65535));
     for (int j = 0; j < 4; ++j)
       simd::select(recompute, all_ones, simd::select(whole, zero, part[j])).store_unaligned(code + std::size_t(j) * N);
