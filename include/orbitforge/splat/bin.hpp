@@ -376,9 +376,8 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
 #endif
       const SplatRecord<Scalar>& rec = ws.packed_[p];
       ws.records[r] = rec;
-      // The tile box from the record's pixel-centre bounds (exact integers).
-      const std::array<std::int32_t, 5> box{{int(rec.x_lo) / ts, int(rec.y_lo) / ts, (int(rec.x_hi) - 1) / ts,
-                                             (int(rec.y_hi) - 1) / ts, detail::record_index(rec)}};
+      const std::array<int, 4> tb = detail::record_tile_box(rec, ts);
+      const std::array<std::int32_t, 5> box{{tb[0], tb[1], tb[2], tb[3], detail::record_index(rec)}};
       ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
       ws.rank_trims[r] = ws.packed_trims_[p];

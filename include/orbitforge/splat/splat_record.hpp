@@ -1,6 +1,7 @@
 #pragma once
 // The record of one visible Gaussian that the rasterizer and its backward read
 // (bin_splats packs them, bin.hpp), with the helpers that read and fill it.
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -47,6 +48,14 @@ inline std::int32_t record_index(const SplatRecord<Scalar>& rec) {
   std::int32_t i;
   std::memcpy(&i, &rec.index_bits, sizeof(i));
   return i;
+}
+
+// The record's tile box from its pixel-centre bounds (exact integers): tile
+// columns [0] .. [2] and rows [1] .. [3], inclusive.
+template <class Scalar>
+inline std::array<int, 4> record_tile_box(const SplatRecord<Scalar>& rec, int tile_size) {
+  return {{int(rec.x_lo) / tile_size, int(rec.y_lo) / tile_size, (int(rec.x_hi) - 1) / tile_size,
+           (int(rec.y_hi) - 1) / tile_size}};
 }
 
 // A lower bound of log2(1 / (255 opacity)): base-2 powers below it give

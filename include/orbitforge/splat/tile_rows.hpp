@@ -78,7 +78,6 @@ class TileRowSpans {
   double inv_a_ = 0, h_ = 0, amu_ = 0, det_ = 0, dx_max_ = 0, dy_max_ = 0, dy_right_ = 0;
 };
 
-
 // A rank's listed tiles, row by row, for boxes of up to kTrimRows rows and
 // kTrimCols columns: per row, the tiles trimmed off the box's left and right
 // ends in 4 bits each (row i in bits 8i..8i+7). The binning computes them once;
@@ -91,12 +90,12 @@ inline constexpr std::uint64_t kTrimsRecompute = ~std::uint64_t(0);
 // The trims of a record's box rows (0: the whole box, as for a box of one row
 // or one column, whose rect is already the ellipse's extent up to clipping).
 template <class Scalar>
-inline std::uint64_t encode_row_trims(const TileRowSpans& spans, const SplatRecord<Scalar>& rec, int tile_size) {
-  const std::array<int, 4> box{{int(rec.x_lo) / tile_size, int(rec.y_lo) / tile_size, (int(rec.x_hi) - 1) / tile_size,
-                                (int(rec.y_hi) - 1) / tile_size}};
+inline std::uint64_t encode_row_trims(const SplatRecord<Scalar>& rec, int tile_size) {
+  const std::array<int, 4> box = record_tile_box(rec, tile_size);
   const int rows = box[3] - box[1] + 1, cols = box[2] - box[0] + 1;
   if (rows == 1 || cols == 1) return 0;
   if (rows > kTrimRows || cols > kTrimCols) return kTrimsRecompute;
+  const TileRowSpans spans(rec, tile_size);
   std::uint64_t t = 0;
   for (int i = 0; i < rows; ++i) {
     const auto [tx0, tx1] = spans.row(box[1] + i, box[0], box[2]);
@@ -175,7 +174,7 @@ void encode_row_trims_lanes(const SplatRecord<Scalar>* recs, std::size_t count, 
       trims[k0 + l] = std::uint64_t(code[l]) | (std::uint64_t(code[N + l]) << 16) | (std::uint64_t(code[2 * N + l]) << 32) |
                       (std::uint64_t(code[3 * N + l]) << 48);
   }
-  for (; k0 < count; ++k0) trims[k0] = encode_row_trims(TileRowSpans(recs[k0], tile_size), recs[k0], tile_size);
+  for (; k0 < count; ++k0) trims[k0] = encode_row_trims(recs[k0], tile_size);
 }
 
 }  // namespace detail
