@@ -99,7 +99,9 @@ TEMPLATE_TEST_CASE("mlp: layout, init bounds and forward against a reference", "
     typename Mlp<S>::Workspace ws;
     M y;
     net.chunk_columns = 8;  // several chunks and ranges
-    for (int threads : {1, 2}) {
+    for (int threads : {1, 2})
+    for (int dense_max_width : {64, 0}) {  // dense.hpp's kernels, Eigen's GEMM
+      net.dense_max_width = dense_max_width;
       net.forward(x, ws, y, threads);
       const M ref = reference_forward(net, x);
       const S tol = std::is_same<S, float>::value ? S(1e-5) : S(1e-13);
@@ -117,10 +119,12 @@ TEMPLATE_TEST_CASE("mlp: layout, init bounds and forward against a reference", "
 TEST_CASE("mlp: backward matches central differences for every parameter and input", "[nn][mlp]") {
   using M = Eigen::MatrixXd;
   for (int skip : {-1, 1, 0}) {
-    for (int threads : {1, 2}) {
+    for (int threads : {1, 2})
+    for (int dense_max_width : {64, 0}) {  // dense.hpp's kernels, Eigen's GEMM
       Mlp<double> net(small_params(skip));
       net.init(99, 1.0);
       net.chunk_columns = 3;
+      net.dense_max_width = dense_max_width;
       std::mt19937 rng(11);
       std::uniform_real_distribution<double> u(-1, 1);
       M x(5, 7), v(net.output_dims(), 7);
@@ -168,7 +172,7 @@ TEST_CASE("mlp: backward matches central differences for every parameter and inp
           UNSCOPED_INFO("input " << i << " fd " << fd << " analytic " << v_x(i));
         }
       }
-      INFO("skip " << skip << " threads " << threads);
+      INFO("skip " << skip << " threads " << threads << " dense_max_width " << dense_max_width);
       CHECK(bad == 0);
     }
   }
@@ -206,4 +210,42 @@ TEST_CASE("mlp: multi-threaded results are reproducible and match one thread", "
     maxabs = std::max(maxabs, double(std::abs(c[k])));
   }
   CHECK(maxdiff <= 1e-4 * maxabs);
+}
+
+TEMPLATE_TEST_CASE("mlp: dense kernels and the GEMM path give the same outputs and gradients", "[nn][mlp]", float, double) {
+  using S = TestType;
+  using M = Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic>;
+  MlpParams p;
+  p.input_dims = 21;
+  p.depth = 3;
+  p.width = 40;
+  p.skip_layer = 0;
+  p.head_dims = {3, 4, 3};
+  Mlp<S> net(p);
+  net.init(4);
+  net.chunk_columns = 100;
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-1, 1);
+  M x(21, 333), v(10, 333);
+  for (int i = 0; i < x.size(); ++i) x(i) = S(u(rng));
+  for (int i = 0; i < v.size(); ++i) v(i) = S(u(rng));
+  auto run = [&](int dense_max_width, M& y, M& v_x) {
+    net.dense_max_width = dense_max_width;
+    typename Mlp<S>::Workspace ws;
+    net.forward(x, ws, y, 2);
+    std::vector<S> g(net.parameter_count(), S(0));
+    net.backward(x, ws, v, g.data(), &v_x, 2);
+    return g;
+  };
+  M y_dense, y_gemm, vx_dense, vx_gemm;
+  const auto g_dense = run(64, y_dense, vx_dense), g_gemm = run(0, y_gemm, vx_gemm);
+  const double tol = std::is_same<S, float>::value ? 1e-5 : 1e-12;
+  CHECK((y_dense - y_gemm).cwiseAbs().maxCoeff() <= tol * (1 + y_gemm.cwiseAbs().maxCoeff()));
+  CHECK((vx_dense - vx_gemm).cwiseAbs().maxCoeff() <= tol * (1 + vx_gemm.cwiseAbs().maxCoeff()));
+  double maxdiff = 0, maxabs = 0;
+  for (std::size_t k = 0; k < g_gemm.size(); ++k) {
+    maxdiff = std::max(maxdiff, double(std::abs(g_dense[k] - g_gemm[k])));
+    maxabs = std::max(maxabs, double(std::abs(g_gemm[k])));
+  }
+  CHECK(maxdiff <= 10 * tol * maxabs);
 }

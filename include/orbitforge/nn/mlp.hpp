@@ -1,9 +1,9 @@
 #pragma once
 // A fully connected ReLU network evaluated on many points at once, points as
 // COLUMNS (features x points, column-major): each layer is one matrix product
-// W [out x in] * A [in x n] over a chunk of points, which is the fast shape for
-// Eigen's GEMM, and a [3 x N] column-major matrix is exactly the [N][3] layout
-// of GaussianScene::means, so inputs and outputs need no transposes.
+// W [out x in] * A [in x n] over a chunk of points (dense.hpp's kernels), and a
+// [3 x N] column-major matrix is exactly the [N][3] layout of
+// GaussianScene::means, so inputs and outputs need no transposes.
 //
 // Architecture (Deformable 3D Gaussians' deformation MLP when depth 8, width 256,
 // skip_layer 4):
@@ -32,6 +32,8 @@
 
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
+#include "orbitforge/nn/dense.hpp"
 
 namespace orbitforge {
 
@@ -63,10 +65,20 @@ class Mlp {
     Eigen::Index points = 0;
     std::vector<Matrix> scratch_a, scratch_b;              // per range: [width x chunk]
     std::vector<std::vector<Scalar>> range_grads;         // per range: [parameter_count]
+    std::vector<std::vector<Scalar>> outer_scratch;       // per range: dense_accumulate_outer's
+    // The layers' weights laid out for dense_forward, set at each call: W_i and b_i
+    // for the forward; W_i^T (the skip layer: its h_{i-1} columns, transposed) and
+    // the heads' W^T for the backward (index depth), layer 0's unused.
+    std::vector<DenseWeights<Scalar>> forward_weights, backward_weights;
   };
 
   // Column chunk processed per GEMM; measured in bench_mlp (512..2048 perform alike).
   Eigen::Index chunk_columns = 1024;
+  // Networks up to this width use dense.hpp's kernels, which keep a layer's
+  // weights in L1 (64 x 64 floats: 16 KB); wider ones use Eigen's packed GEMM,
+  // which reuses each weight over more points (bench_mlp, 4 x 64 fwd+bwd x0.82-0.95
+  // with the kernels; 4 x 128 x0.92-1.04; 8 x 256 x1.2-1.6).
+  int dense_max_width = 64;
 
   explicit Mlp(const MlpParams& p) : p_(p) {
     ensure(p.input_dims > 0, "Mlp: input_dims must be positive, got ", p.input_dims);
@@ -143,19 +155,27 @@ class Mlp {
   void forward(const Matrix& input, Workspace& ws, Matrix& out, int threads = 0) const {
     ensure(input.rows() == p_.input_dims, "Mlp::forward: input has ", input.rows(), " rows, expected ",
            p_.input_dims);
-    ensure(input.allFinite(), "Mlp::forward: input contains non-finite values");
     const Eigen::Index n = input.cols();
     ws.hidden.resize(std::size_t(p_.depth));
     for (auto& h : ws.hidden)
       if (h.rows() != p_.width || h.cols() != n) h.resize(p_.width, n);
     ws.points = n;
     if (out.rows() != output_dims() || out.cols() != n) out.resize(output_dims(), n);
+    ws.forward_weights.resize(dense_kernels() ? layers_.size() : 0);
+    for (std::size_t i = 0; i < ws.forward_weights.size(); ++i) {
+      const Layer& l = layers_[i];
+      ws.forward_weights[i].template assign<Batch>(params_.data() + l.w, l.rows, l.rows, l.cols, false,
+                                                   params_.data() + l.b);
+    }
     const int ranges = range_count(n, threads);
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
       const auto [begin, end] = range(n, ranges, int(r));
       for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
         const Eigen::Index m = std::min(chunk_columns, end - c0);
-        forward_chunk(input, ws, out, c0, m);
+        ensure(input.middleCols(c0, m).allFinite(), "Mlp::forward: input contains non-finite values (points ", c0,
+               " to ", c0 + m - 1, ")");
+        if (dense_kernels()) forward_chunk(input, ws, out, c0, m);
+        else forward_chunk_gemm(input, ws, out, c0, m);
       }
     });
   }
@@ -178,6 +198,15 @@ class Mlp {
     const Eigen::Index chunk = std::min<Eigen::Index>(chunk_columns, std::max<Eigen::Index>(n, 1));
     ws.scratch_a.resize(std::size_t(ranges));
     ws.scratch_b.resize(std::size_t(ranges));
+    ws.outer_scratch.resize(std::size_t(ranges));
+    ws.backward_weights.resize(dense_kernels() ? layers_.size() : 0);
+    for (std::size_t i = 1; i < ws.backward_weights.size(); ++i) {
+      const Layer& l = layers_[i];
+      // The part of W_i that multiplies h_{i-1}: all of it, or the skip layer's last width columns.
+      const Eigen::Index in_cols = is_skip_input(int(i)) ? p_.input_dims : 0;
+      ws.backward_weights[i].template assign<Batch>(params_.data() + l.w + std::size_t(in_cols) * std::size_t(l.rows),
+                                                    l.rows, l.cols - in_cols, l.rows, true, nullptr);
+    }
     // With one range the gradients go straight into v_params (still accumulated).
     if (ranges > 1) ws.range_grads.resize(std::size_t(ranges));
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
@@ -194,7 +223,8 @@ class Mlp {
       const auto [begin, end] = range(n, ranges, int(r));
       for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
         const Eigen::Index m = std::min(chunk_columns, end - c0);
-        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b);
+        if (dense_kernels()) backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r]);
+        else backward_chunk_gemm(input, ws, v_out, g, v_input, c0, m, a, b);
       }
     });
     if (ranges > 1) {
@@ -205,6 +235,9 @@ class Mlp {
   }
 
  private:
+  using Batch = simd::native_batch<Scalar>;
+  bool dense_kernels() const { return p_.width <= dense_max_width; }
+
   int range_count(Eigen::Index n, int threads) const {
     const Eigen::Index by_size = (n + chunk_columns - 1) / chunk_columns;
     return int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(resolve_threads(threads), by_size)));
@@ -222,6 +255,80 @@ class Mlp {
   }
 
   void forward_chunk(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
+    const Eigen::Index in_rows = input.rows(), width = p_.width;
+    const Scalar* x = input.data() + c0 * in_rows;
+    for (int i = 0; i <= p_.depth; ++i) {
+      const DenseWeights<Scalar>& w = ws.forward_weights[std::size_t(i)];
+      const Scalar* h_prev = i > 0 ? ws.hidden[std::size_t(i - 1)].data() + c0 * width : nullptr;
+      DenseTerm<Scalar> terms[2];
+      int n_terms = 1;
+      if (i == 0) {
+        terms[0] = {w.column(0), w.ld, in_rows, x, in_rows};
+      } else if (is_skip_input(i)) {
+        terms[0] = {w.column(0), w.ld, in_rows, x, in_rows};
+        terms[1] = {w.column(in_rows), w.ld, width, h_prev, width};
+        n_terms = 2;
+      } else {
+        terms[0] = {w.column(0), w.ld, width, h_prev, width};
+      }
+      const bool head = i == p_.depth;
+      Scalar* z = head ? out.data() + c0 * out.rows() : ws.hidden[std::size_t(i)].data() + c0 * width;
+      dense_forward<Batch>(w.rows, terms, n_terms, w.b.data(), m, z, head ? out.rows() : width, !head);
+    }
+  }
+
+  void backward_chunk(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
+                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb, std::vector<Scalar>& outer) const {
+    const Eigen::Index in_rows = input.rows(), width = p_.width;
+    const Scalar* x = input.data() + c0 * in_rows;
+    auto hidden = [&](int i) { return ws.hidden[std::size_t(i)].data() + c0 * width; };
+    // v_h = W^T v_z over the part of W that multiplies h (backward_weights).
+    auto back_through = [&](int i, const Scalar* v_z, Eigen::Index ld_v_z, Matrix& v_h) {
+      const DenseWeights<Scalar>& wt = ws.backward_weights[std::size_t(i)];
+      const DenseTerm<Scalar> term{wt.column(0), wt.ld, wt.cols, v_z, ld_v_z};
+      dense_forward<Batch>(width, &term, 1, nullptr, m, v_h.data(), v_h.rows(), false);
+    };
+    // Heads.
+    {
+      const Layer& l = layers_.back();
+      Eigen::Map<Vector> gb(g + l.b, l.rows);
+      const Scalar* vy = v_out.data() + c0 * v_out.rows();
+      dense_accumulate_outer<Batch>(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m,
+                                    outer);
+      add_column_sum(v_out.middleCols(c0, m), gb);
+      back_through(p_.depth, vy, v_out.rows(), sa);  // v_h_{depth-1}
+    }
+    if (v_input) v_input->middleCols(c0, m).setZero();
+    Matrix* cur = &sa;
+    Matrix* nxt = &sb;
+    for (int i = p_.depth - 1; i >= 0; --i) {
+      const Layer& l = layers_[std::size_t(i)];
+      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+      Eigen::Map<Vector> gb(g + l.b, l.rows);
+      auto dz = cur->topLeftCorner(width, m);
+      const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
+      // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
+      dz.array() = (h.array() > Scalar(0)).select(dz.array(), Scalar(0));
+      add_column_sum(dz, gb);
+      const Scalar* v_z = cur->data();
+      const Eigen::Index ld_v_z = cur->rows();
+      // The input's columns of W_i: all of layer 0, the first input_dims of the skip layer.
+      if (i == 0 || is_skip_input(i)) {
+        dense_accumulate_outer<Batch>(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer);
+        if (v_input)
+          v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
+        if (i == 0) break;
+      }
+      const Eigen::Index h_col = is_skip_input(i) ? in_rows : 0;
+      dense_accumulate_outer<Batch>(g + l.w + std::size_t(h_col * l.rows), l.rows, l.rows, width, v_z, ld_v_z,
+                                    hidden(i - 1), width, m, outer);
+      back_through(i, v_z, ld_v_z, *nxt);
+      std::swap(cur, nxt);
+    }
+  }
+
+  // Eigen's blocked GEMM: for networks wider than dense_max_width.
+  void forward_chunk_gemm(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
     for (int i = 0; i < p_.depth; ++i) {
       const Layer& l = layers_[std::size_t(i)];
       ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
@@ -245,7 +352,7 @@ class Mlp {
     y.colwise() += b;
   }
 
-  void backward_chunk(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
+  void backward_chunk_gemm(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
                       Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb) const {
     // Heads.
     {
