@@ -24,6 +24,7 @@
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
 #include "orbitforge/nn/adam.hpp"
+#include "orbitforge/nn/dense.hpp"
 #include "orbitforge/nn/encoding.hpp"
 #include "orbitforge/nn/mlp.hpp"
 #include "orbitforge/pipeline/completion/prompt.hpp"
