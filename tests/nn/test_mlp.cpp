@@ -54,6 +54,25 @@ Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic> reference_forward(const Mlp<S>&
   return y;
 }
 
+// A network with three heads (3, 4 and 3 outputs, as the deformation field's).
+MlpParams three_head_params(int input_dims, int depth, int width, int skip) {
+  MlpParams p;
+  p.input_dims = input_dims;
+  p.depth = depth;
+  p.width = width;
+  p.skip_layer = skip;
+  p.head_dims = {3, 4, 3};
+  return p;
+}
+
+template <class S>
+Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic> uniform_matrix(int rows, int cols, std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic> m(rows, cols);
+  for (int i = 0; i < m.size(); ++i) m(i) = S(u(rng));
+  return m;
+}
+
 MlpParams small_params(int skip) {
   MlpParams p;
   p.input_dims = 5;
@@ -180,20 +199,11 @@ TEST_CASE("mlp: backward matches central differences for every parameter and inp
 
 TEST_CASE("mlp: multi-threaded results are reproducible and match one thread", "[nn][mlp]") {
   using M = Eigen::MatrixXf;
-  MlpParams p;
-  p.input_dims = 13;
-  p.depth = 3;
-  p.width = 32;
-  p.skip_layer = 1;
-  p.head_dims = {3, 4, 3};
-  Mlp<float> net(p);
+  Mlp<float> net(three_head_params(13, 3, 32, 1));
   net.init(1);
   net.chunk_columns = 64;
   std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(-1, 1);
-  M x(13, 1000), v(10, 1000);
-  for (int i = 0; i < x.size(); ++i) x(i) = u(rng);
-  for (int i = 0; i < v.size(); ++i) v(i) = u(rng);
+  const M x = uniform_matrix<float>(13, 1000, rng), v = uniform_matrix<float>(10, 1000, rng);
   auto run = [&](int threads) {
     typename Mlp<float>::Workspace ws;
     M y;
@@ -215,20 +225,11 @@ TEST_CASE("mlp: multi-threaded results are reproducible and match one thread", "
 TEMPLATE_TEST_CASE("mlp: dense kernels and the GEMM path give the same outputs and gradients", "[nn][mlp]", float, double) {
   using S = TestType;
   using M = Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic>;
-  MlpParams p;
-  p.input_dims = 21;
-  p.depth = 3;
-  p.width = 40;
-  p.skip_layer = 0;
-  p.head_dims = {3, 4, 3};
-  Mlp<S> net(p);
+  Mlp<S> net(three_head_params(21, 3, 40, 0));
   net.init(4);
   net.chunk_columns = 100;
   std::mt19937 rng(9);
-  std::uniform_real_distribution<double> u(-1, 1);
-  M x(21, 333), v(10, 333);
-  for (int i = 0; i < x.size(); ++i) x(i) = S(u(rng));
-  for (int i = 0; i < v.size(); ++i) v(i) = S(u(rng));
+  const M x = uniform_matrix<S>(21, 333, rng), v = uniform_matrix<S>(10, 333, rng);
   auto run = [&](int dense_max_width, M& y, M& v_x) {
     net.dense_max_width = dense_max_width;
     typename Mlp<S>::Workspace ws;

@@ -174,8 +174,7 @@ class Mlp {
         const Eigen::Index m = std::min(chunk_columns, end - c0);
         ensure(input.middleCols(c0, m).allFinite(), "Mlp::forward: input contains non-finite values (points ", c0,
                " to ", c0 + m - 1, ")");
-        if (dense_kernels()) forward_chunk(input, ws, out, c0, m);
-        else forward_chunk_gemm(input, ws, out, c0, m);
+        forward_chunk(input, ws, out, c0, m);
       }
     });
   }
@@ -223,8 +222,7 @@ class Mlp {
       const auto [begin, end] = range(n, ranges, int(r));
       for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
         const Eigen::Index m = std::min(chunk_columns, end - c0);
-        if (dense_kernels()) backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r]);
-        else backward_chunk_gemm(input, ws, v_out, g, v_input, c0, m, a, b);
+        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r]);
       }
     });
     if (ranges > 1) {
@@ -254,26 +252,74 @@ class Mlp {
     for (Eigen::Index j = 0; j < a.cols(); ++j) gb += a.col(j);
   }
 
-  void forward_chunk(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
-    const Eigen::Index in_rows = input.rows(), width = p_.width;
-    const Scalar* x = input.data() + c0 * in_rows;
-    for (int i = 0; i <= p_.depth; ++i) {
+  using StridedMap = Eigen::Map<Matrix, 0, Eigen::OuterStride<>>;
+  using ConstStridedMap = Eigen::Map<const Matrix, 0, Eigen::OuterStride<>>;
+
+  // Layer i over m points: z = act(W_i [x; h] + b_i), x only in layer 0 and the
+  // skip layer, h (the previous layer's output) in every other; act is ReLU
+  // except for the heads (i == depth).
+  void layer_forward(const Workspace& ws, int i, const Scalar* x, Eigen::Index ldx, const Scalar* h, Eigen::Index m,
+                     Scalar* z, Eigen::Index ldz) const {
+    const Layer& l = layers_[std::size_t(i)];
+    const bool relu = i < p_.depth;
+    const Eigen::Index in_cols = i == 0 || is_skip_input(i) ? p_.input_dims : 0;
+    if (dense_kernels()) {
       const DenseWeights<Scalar>& w = ws.forward_weights[std::size_t(i)];
-      const Scalar* h_prev = i > 0 ? ws.hidden[std::size_t(i - 1)].data() + c0 * width : nullptr;
       DenseTerm<Scalar> terms[2];
-      int n_terms = 1;
-      if (i == 0) {
-        terms[0] = {w.column(0), w.ld, in_rows, x, in_rows};
-      } else if (is_skip_input(i)) {
-        terms[0] = {w.column(0), w.ld, in_rows, x, in_rows};
-        terms[1] = {w.column(in_rows), w.ld, width, h_prev, width};
-        n_terms = 2;
-      } else {
-        terms[0] = {w.column(0), w.ld, width, h_prev, width};
-      }
-      const bool head = i == p_.depth;
-      Scalar* z = head ? out.data() + c0 * out.rows() : ws.hidden[std::size_t(i)].data() + c0 * width;
-      dense_forward<Batch>(w.rows, terms, n_terms, w.b.data(), m, z, head ? out.rows() : width, !head);
+      int n_terms = 0;
+      if (in_cols > 0) terms[n_terms++] = {w.column(0), w.ld, in_cols, x, ldx};
+      if (i > 0) terms[n_terms++] = {w.column(in_cols), w.ld, p_.width, h, p_.width};
+      dense_forward<Batch>(w.rows, terms, n_terms, w.b.data(), m, z, ldz, relu);
+      return;
+    }
+    ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+    StridedMap zm(z, l.rows, m, Eigen::OuterStride<>(ldz));
+    if (in_cols > 0) zm.noalias() = w.leftCols(in_cols) * ConstStridedMap(x, in_cols, m, Eigen::OuterStride<>(ldx));
+    if (i > 0) {
+      const ConstMatrixMap hm(h, p_.width, m);
+      if (in_cols > 0) zm.noalias() += w.rightCols(p_.width) * hm;
+      else zm.noalias() = w * hm;
+    }
+    Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
+    if (relu) zm = (zm.colwise() + b).cwiseMax(Scalar(0));  // one pass over z
+    else zm.colwise() += b;
+  }
+
+  // g (rows x cols, leading dimension ldg) += d h^T over m points.
+  void weight_gradient(Scalar* g, Eigen::Index ldg, Eigen::Index rows, Eigen::Index cols, const Scalar* d,
+                       Eigen::Index ldd, const Scalar* h, Eigen::Index ldh, Eigen::Index m,
+                       std::vector<Scalar>& outer) const {
+    if (dense_kernels()) {
+      dense_accumulate_outer<Batch>(g, ldg, rows, cols, d, ldd, h, ldh, m, outer);
+      return;
+    }
+    StridedMap(g, rows, cols, Eigen::OuterStride<>(ldg)).noalias() +=
+        ConstStridedMap(d, rows, m, Eigen::OuterStride<>(ldd)) *
+        ConstStridedMap(h, cols, m, Eigen::OuterStride<>(ldh)).transpose();
+  }
+
+  // v_h (width x m) = W_i^T v_z over the columns of W_i that multiply h_{i-1}
+  // (i == depth: the heads').
+  void back_through(const Workspace& ws, int i, const Scalar* v_z, Eigen::Index ld_v_z, Eigen::Index m,
+                    Matrix& v_h) const {
+    if (dense_kernels()) {
+      const DenseWeights<Scalar>& wt = ws.backward_weights[std::size_t(i)];
+      const DenseTerm<Scalar> term{wt.column(0), wt.ld, wt.cols, v_z, ld_v_z};
+      dense_forward<Batch>(p_.width, &term, 1, nullptr, m, v_h.data(), v_h.rows(), false);
+      return;
+    }
+    const Layer& l = layers_[std::size_t(i)];
+    ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
+    v_h.topLeftCorner(p_.width, m).noalias() =
+        w.rightCols(p_.width).transpose() * ConstStridedMap(v_z, l.rows, m, Eigen::OuterStride<>(ld_v_z));
+  }
+
+  void forward_chunk(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
+    const Scalar* x = input.data() + c0 * input.rows();
+    for (int i = 0; i <= p_.depth; ++i) {
+      const Scalar* h = i > 0 ? ws.hidden[std::size_t(i - 1)].data() + c0 * p_.width : nullptr;
+      if (i == p_.depth) layer_forward(ws, i, x, input.rows(), h, m, out.data() + c0 * out.rows(), out.rows());
+      else layer_forward(ws, i, x, input.rows(), h, m, ws.hidden[std::size_t(i)].data() + c0 * p_.width, p_.width);
     }
   }
 
@@ -282,28 +328,20 @@ class Mlp {
     const Eigen::Index in_rows = input.rows(), width = p_.width;
     const Scalar* x = input.data() + c0 * in_rows;
     auto hidden = [&](int i) { return ws.hidden[std::size_t(i)].data() + c0 * width; };
-    // v_h = W^T v_z over the part of W that multiplies h (backward_weights).
-    auto back_through = [&](int i, const Scalar* v_z, Eigen::Index ld_v_z, Matrix& v_h) {
-      const DenseWeights<Scalar>& wt = ws.backward_weights[std::size_t(i)];
-      const DenseTerm<Scalar> term{wt.column(0), wt.ld, wt.cols, v_z, ld_v_z};
-      dense_forward<Batch>(width, &term, 1, nullptr, m, v_h.data(), v_h.rows(), false);
-    };
     // Heads.
     {
       const Layer& l = layers_.back();
       Eigen::Map<Vector> gb(g + l.b, l.rows);
       const Scalar* vy = v_out.data() + c0 * v_out.rows();
-      dense_accumulate_outer<Batch>(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m,
-                                    outer);
+      weight_gradient(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m, outer);
       add_column_sum(v_out.middleCols(c0, m), gb);
-      back_through(p_.depth, vy, v_out.rows(), sa);  // v_h_{depth-1}
+      back_through(ws, p_.depth, vy, v_out.rows(), m, sa);  // v_h_{depth-1}
     }
     if (v_input) v_input->middleCols(c0, m).setZero();
     Matrix* cur = &sa;
     Matrix* nxt = &sb;
     for (int i = p_.depth - 1; i >= 0; --i) {
       const Layer& l = layers_[std::size_t(i)];
-      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
       Eigen::Map<Vector> gb(g + l.b, l.rows);
       auto dz = cur->topLeftCorner(width, m);
       const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
@@ -314,87 +352,17 @@ class Mlp {
       const Eigen::Index ld_v_z = cur->rows();
       // The input's columns of W_i: all of layer 0, the first input_dims of the skip layer.
       if (i == 0 || is_skip_input(i)) {
-        dense_accumulate_outer<Batch>(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer);
-        if (v_input)
+        weight_gradient(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer);
+        if (v_input) {
+          ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
           v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
+        }
         if (i == 0) break;
       }
       const Eigen::Index h_col = is_skip_input(i) ? in_rows : 0;
-      dense_accumulate_outer<Batch>(g + l.w + std::size_t(h_col * l.rows), l.rows, l.rows, width, v_z, ld_v_z,
-                                    hidden(i - 1), width, m, outer);
-      back_through(i, v_z, ld_v_z, *nxt);
-      std::swap(cur, nxt);
-    }
-  }
-
-  // Eigen's blocked GEMM: for networks wider than dense_max_width.
-  void forward_chunk_gemm(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
-    for (int i = 0; i < p_.depth; ++i) {
-      const Layer& l = layers_[std::size_t(i)];
-      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-      auto z = ws.hidden[std::size_t(i)].middleCols(c0, m);
-      if (i == 0) {
-        z.noalias() = w * input.middleCols(c0, m);
-      } else if (is_skip_input(i)) {
-        z.noalias() = w.leftCols(p_.input_dims) * input.middleCols(c0, m);
-        z.noalias() += w.rightCols(p_.width) * ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
-      } else {
-        z.noalias() = w * ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
-      }
-      Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
-      z = (z.colwise() + b).cwiseMax(Scalar(0));
-    }
-    const Layer& l = layers_.back();
-    ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-    Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
-    auto y = out.middleCols(c0, m);
-    y.noalias() = w * ws.hidden.back().middleCols(c0, m);
-    y.colwise() += b;
-  }
-
-  void backward_chunk_gemm(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
-                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb) const {
-    // Heads.
-    {
-      const Layer& l = layers_.back();
-      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-      MatrixMap gw(g + l.w, l.rows, l.cols);
-      Eigen::Map<Vector> gb(g + l.b, l.rows);
-      const auto vy = v_out.middleCols(c0, m);
-      gw.noalias() += vy * ws.hidden.back().middleCols(c0, m).transpose();
-      add_column_sum(vy, gb);
-      sa.topLeftCorner(p_.width, m).noalias() = w.transpose() * vy;  // v_h_{depth-1}
-    }
-    if (v_input) v_input->middleCols(c0, m).setZero();
-    Matrix* cur = &sa;
-    Matrix* nxt = &sb;
-    for (int i = p_.depth - 1; i >= 0; --i) {
-      const Layer& l = layers_[std::size_t(i)];
-      ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-      MatrixMap gw(g + l.w, l.rows, l.cols);
-      Eigen::Map<Vector> gb(g + l.b, l.rows);
-      auto dz = cur->topLeftCorner(p_.width, m);
-      const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
-      // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
-      dz.array() = (h.array() > Scalar(0)).select(dz.array(), Scalar(0));
-      add_column_sum(dz, gb);
-      const auto x = input.middleCols(c0, m);
-      if (i == 0) {
-        gw.noalias() += dz * x.transpose();
-        if (v_input) v_input->middleCols(c0, m).noalias() += w.transpose() * dz;
-        break;
-      }
-      const auto hp = ws.hidden[std::size_t(i - 1)].middleCols(c0, m);
-      auto dh = nxt->topLeftCorner(p_.width, m);
-      if (is_skip_input(i)) {
-        gw.leftCols(p_.input_dims).noalias() += dz * x.transpose();
-        gw.rightCols(p_.width).noalias() += dz * hp.transpose();
-        if (v_input) v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
-        dh.noalias() = w.rightCols(p_.width).transpose() * dz;
-      } else {
-        gw.noalias() += dz * hp.transpose();
-        dh.noalias() = w.transpose() * dz;
-      }
+      weight_gradient(g + l.w + std::size_t(h_col * l.rows), l.rows, l.rows, width, v_z, ld_v_z, hidden(i - 1),
+                      width, m, outer);
+      back_through(ws, i, v_z, ld_v_z, m, *nxt);
       std::swap(cur, nxt);
     }
   }
