@@ -1,7 +1,8 @@
 #pragma once
 // The two dense products of an MLP layer over a batch of points stored as
-// columns (mlp.hpp), for layers of tens to hundreds of units and chunks of
-// about a thousand points:
+// columns (mlp.hpp), for layers of up to about 64 units and chunks of about a
+// thousand points (wider layers reuse each weight over too few points here;
+// mlp.hpp gives those to Eigen's GEMM):
 //
 //   dense_forward           Z = act(W1 X1 + W2 X2 + b)   W R x K, X K x m, Z R x m
 //   dense_accumulate_outer  G += D H^T                    G R x K, D R x m, H K x m
@@ -9,8 +10,9 @@
 // All column-major. A block of W's rows stays in registers while the columns of
 // X stream by: no packed copy of X and no zero fill of Z, which a general GEMM
 // makes on every call and which were about a third of the field's time at
-// these sizes (bench_mlp). Each output is one fixed-order sum, so results do
-// not depend on how the columns are split between threads.
+// these sizes (bench_mlp). dense_forward's columns are independent sums in a
+// fixed order, so they do not depend on how the columns are split between
+// calls; dense_accumulate_outer adds its columns in order, 128 at a time.
 #include <Eigen/Core>
 #include <algorithm>
 #include <cstddef>
@@ -44,7 +46,7 @@ struct DenseWeights {
     b.assign(bias ? std::size_t(ld) : 0, Scalar(0));
     if (bias) std::copy_n(bias, r, b.begin());
   }
-  // Columns [c0, c0 + n) as an operand's weights.
+  // The weights from column c0 on (a DenseTerm's).
   const Scalar* column(Eigen::Index c0) const { return w.data() + c0 * ld; }
 };
 

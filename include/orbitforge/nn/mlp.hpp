@@ -1,9 +1,10 @@
 #pragma once
 // A fully connected ReLU network evaluated on many points at once, points as
 // COLUMNS (features x points, column-major): each layer is one matrix product
-// W [out x in] * A [in x n] over a chunk of points (dense.hpp's kernels), and a
-// [3 x N] column-major matrix is exactly the [N][3] layout of
-// GaussianScene::means, so inputs and outputs need no transposes.
+// W [out x in] * A [in x n] over a chunk of points (dense.hpp's kernels up to
+// dense_max_width units, Eigen's GEMM above), and a [3 x N] column-major matrix
+// is exactly the [N][3] layout of GaussianScene::means, so inputs and outputs
+// need no transposes.
 //
 // Architecture (Deformable 3D Gaussians' deformation MLP when depth 8, width 256,
 // skip_layer 4):
