@@ -158,11 +158,21 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
   const B zero(Scalar(0)), one(Scalar(1));
   for (int j = tile_max - 1; j >= 0; --j) {
 #if defined(__GNUC__)
-    // The records of a tile are scattered over the whole rank range.
+    // The records of a tile are scattered over the whole rank range, and so
+    // are their gradient slots: a slot written without its line in cache
+    // stalls the stores behind it while the line is read, so its address
+    // (from the box and offset fetched 8 entries earlier) is prefetched for
+    // writing too.
     if (j >= 8) {
       __builtin_prefetch(&rec[ranks[j - 8]]);
-      __builtin_prefetch(&bins.rank_boxes[std::size_t(ranks[j - 8])]);
-      __builtin_prefetch(&bins.rank_offsets[std::size_t(ranks[j - 8])]);
+      const Scalar* slot =
+          pair_grad + std::size_t(bins.entry_slot(tile_col, tile_row, std::size_t(ranks[j - 8]))) * kGradFields;
+      __builtin_prefetch(slot, 1);
+      __builtin_prefetch(slot + kGradFields - 1, 1);
+    }
+    if (j >= 16) {
+      __builtin_prefetch(&bins.rank_boxes[std::size_t(ranks[j - 16])]);
+      __builtin_prefetch(&bins.rank_offsets[std::size_t(ranks[j - 16])]);
     }
 #endif
     const SplatRecord<Scalar>& G = rec[ranks[j]];
