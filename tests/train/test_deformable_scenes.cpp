@@ -87,7 +87,11 @@ TEST_CASE("deformable training keeps up with static training on a small, clutter
   INFO("deformable: " << de.gaussians << " Gaussians (peak " << de.peak << "), train " << de.train_psnr
                       << " dB, held out " << de.heldout_psnr << " dB");
   CHECK(st.train_psnr > 20);
-  CHECK(de.train_psnr > st.train_psnr - 1.0);
+  // At about 45 dB the deformable model's training PSNR moves by 1.4 dB with the
+  // order its field's gradients are summed in: 43.7 on one thread and 45.1 on
+  // two with Eigen's products, 44.1 on two with the dense kernels (the static
+  // model is the same on any thread count). Held out, the three agree within 0.04 dB.
+  CHECK(de.train_psnr > st.train_psnr - 2.0);
   CHECK(de.heldout_psnr > st.heldout_psnr - 1.0);
   CHECK(de.gaussians > st.gaussians / 3);  // no collapse
   CHECK(de.peak < 3 * st.peak);            // no explosion

@@ -86,7 +86,15 @@ TEST_CASE("still-scene check: a field fitted to a moving object gains more over 
   const ShortcutState still = check_after_fit(frames_of(0, 1), -1e6, -1e6);
   const ShortcutState moving = check_after_fit(frames_of(0.3, 1), -1e6, -1e6);
   INFO("the field's gain: still " << still.field_gain_db << " dB, moving " << moving.field_gain_db << " dB");
-  REQUIRE(moving.field_gain_db > still.field_gain_db + 1.0);
+  // The whole-image gains lie either side of the default threshold, so the
+  // check keeps the moving field and bakes the still one. Their separation is
+  // pinned looser than the region figure's: the moving fit's gain came out at
+  // 1.29 and 1.19 dB with the field's products summed in two orders (Eigen's
+  // GEMM, the dense kernels), the still one's at 0.21.
+  const TrainParams defaults;
+  REQUIRE(moving.field_gain_db > defaults.still_gain_db);
+  REQUIRE(still.field_gain_db < defaults.still_gain_db);
+  REQUIRE(moving.field_gain_db > still.field_gain_db + 0.75);
   REQUIRE(moving.field_region_gain_db > still.field_region_gain_db + 1.0);
 }
 
