@@ -1,0 +1,240 @@
+#pragma once
+// The rotation of a camera about its own centre that best aligns a rendered
+// view with the photograph it is scored against.
+//
+// Scoring a scene at a camera from another estimate (the user's path: the
+// reference model's cameras, aligned by one similarity) adds the two
+// estimates' disagreement to the scene's error: a few tenths of a degree move
+// a sharp frame by several pixels and cost several dB. Fitting each scored
+// view's orientation to its image, the scene held fixed, separates the two
+// (test-view pose fitting, as evaluations of methods with estimated cameras
+// do). Only the orientation is fitted: at the distance of an object a small
+// sideways shift of the centre looks almost like a small turn, and a turn
+// about the centre needs no depth.
+//
+// A camera turned by dR about its centre (camera_R_world' = dR camera_R_world)
+// sees at pixel x what the unturned camera sees at W(x) = pi(K dR^T K^-1 x~):
+// a homography of the image. Gauss-Newton on the photometric error
+//   E(dR) = sum_x sum_c rho(render_c(W(x)) - target_c(x)),
+// rho Huber (a part of the scene that is wrong does not pull the fit), updates
+// composed on the left, dR <- exp(w) dR, coarse to fine over 2x2-box pyramids
+// (the intrinsics halved with each level, pixel centres at i + 1/2). Pixels
+// whose W(x) leaves the rendered image are not counted.
+//
+// The fit is kept only when it lowers the error over the pixels both images
+// share and the turn stays within max_angle_deg; otherwise dR is the identity.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <utility>
+#include <vector>
+
+#include "orbitforge/core/camera.hpp"
+#include "orbitforge/core/constants.hpp"
+#include "orbitforge/core/error.hpp"
+#include "orbitforge/core/image.hpp"
+
+namespace orbitforge {
+
+struct ViewRotationParams {
+  int levels = 4;               // pyramid levels (the coarsest one first)
+  int iterations = 15;          // Gauss-Newton steps per level at most
+  double max_angle_deg = 5.0;   // a larger turn is not a scoring correction: refused
+  double huber = 0.1;           // residual (per channel, [0, 1] values) where rho turns linear
+  double min_step_deg = 1e-4;   // a level stops once a step is smaller than this
+};
+
+struct ViewRotationFit {
+  Eigen::Matrix3d camera_R_camera = Eigen::Matrix3d::Identity();  // dR: new camera from the given one
+  double angle_deg = 0;        // |dR|
+  double rms_before = 0;       // over the pixels both images share, full size
+  double rms_after = 0;
+  bool refined = false;        // false: dR is the identity (no gain, or the turn was refused)
+};
+
+// The camera `c` turned by dR about its centre.
+template <class Scalar>
+Camera<Scalar> turned_camera(const Camera<Scalar>& c, const Eigen::Matrix3d& camera_R_camera) {
+  Camera<Scalar> out = c;
+  const auto centre = c.center();
+  out.R = (camera_R_camera * c.R.template cast<double>()).template cast<Scalar>();
+  out.t = -out.R * centre;
+  return out;
+}
+
+namespace view_rotation_detail {
+
+// One pyramid level in double, channel-interleaved as Image.
+struct Level {
+  int w = 0, h = 0, c = 0;
+  std::vector<double> v;
+  double at(int x, int y, int k) const { return v[(std::size_t(y) * w + x) * c + k]; }
+};
+
+template <class Scalar>
+Level to_level(const Image<Scalar>& im) {
+  Level l{im.width, im.height, im.channels, {}};
+  l.v.assign(im.data.begin(), im.data.end());
+  return l;
+}
+
+inline Level half(const Level& a) {
+  Level b{std::max(1, a.w / 2), std::max(1, a.h / 2), a.c, {}};
+  b.v.assign(std::size_t(b.w) * b.h * b.c, 0.0);
+  for (int y = 0; y < b.h; ++y)
+    for (int x = 0; x < b.w; ++x)
+      for (int k = 0; k < a.c; ++k) {
+        const int x0 = std::min(2 * x, a.w - 1), x1 = std::min(2 * x + 1, a.w - 1);
+        const int y0 = std::min(2 * y, a.h - 1), y1 = std::min(2 * y + 1, a.h - 1);
+        b.v[(std::size_t(y) * b.w + x) * b.c + k] =
+            0.25 * (a.at(x0, y0, k) + a.at(x1, y0, k) + a.at(x0, y1, k) + a.at(x1, y1, k));
+      }
+  return b;
+}
+
+// Bilinear sample of channel k and its x / y derivatives at continuous pixel
+// coordinates (u, v) (centres at i + 1/2); false outside the interior where a
+// central difference exists.
+inline bool sample(const Level& l, double u, double v, int k, double& value, double& dx, double& dy) {
+  const double fx = u - 0.5, fy = v - 0.5;
+  const int x0 = int(std::floor(fx)), y0 = int(std::floor(fy));
+  if (x0 < 1 || y0 < 1 || x0 + 2 >= l.w || y0 + 2 >= l.h) return false;
+  const double ax = fx - x0, ay = fy - y0;
+  auto lerp = [&](auto f) {
+    return (1 - ay) * ((1 - ax) * f(x0, y0) + ax * f(x0 + 1, y0)) + ay * ((1 - ax) * f(x0, y0 + 1) + ax * f(x0 + 1, y0 + 1));
+  };
+  value = lerp([&](int x, int y) { return l.at(x, y, k); });
+  dx = lerp([&](int x, int y) { return 0.5 * (l.at(x + 1, y, k) - l.at(x - 1, y, k)); });
+  dy = lerp([&](int x, int y) { return 0.5 * (l.at(x, y + 1, k) - l.at(x, y - 1, k)); });
+  return true;
+}
+
+// exp of a rotation vector.
+inline Eigen::Matrix3d exp_so3(const Eigen::Vector3d& w) {
+  const double a = w.norm();
+  if (a < 1e-12) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
+}
+
+inline double angle_deg(const Eigen::Matrix3d& r) { return Constants<double>::rad2deg(Eigen::AngleAxisd(r).angle()); }
+
+struct Intr {
+  double fx, fy, cx, cy;
+};
+
+// Where pixel (x, y) of the turned camera lands in the unturned one's image.
+inline bool warp(const Intr& K, const Eigen::Matrix3d& dR_transposed, int x, int y, double& u, double& v) {
+  const Eigen::Vector3d q = dR_transposed * Eigen::Vector3d((x + 0.5 - K.cx) / K.fx, (y + 0.5 - K.cy) / K.fy, 1.0);
+  if (q.z() <= 0) return false;
+  u = K.fx * q.x() / q.z() + K.cx;
+  v = K.fy * q.y() / q.z() + K.cy;
+  return true;
+}
+
+// Root mean squares of render(W(x)) - target(x) for the identity and for dR,
+// over the pixels both warps keep inside the render (no robust weight).
+inline std::pair<double, double> rms_pair(const Level& render, const Level& target, const Intr& K,
+                                          const Eigen::Matrix3d& dR) {
+  double sum0 = 0, sum1 = 0;
+  std::size_t n = 0;
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity(), Rt = dR.transpose();
+  for (int y = 0; y < target.h; ++y)
+    for (int x = 0; x < target.w; ++x) {
+      double u0, v0, u1, v1, a, b, gx, gy;
+      if (!warp(K, I, x, y, u0, v0) || !warp(K, Rt, x, y, u1, v1)) continue;
+      if (!sample(render, u0, v0, 0, a, gx, gy) || !sample(render, u1, v1, 0, b, gx, gy)) continue;
+      for (int k = 0; k < target.c; ++k) {
+        sample(render, u0, v0, k, a, gx, gy);
+        sample(render, u1, v1, k, b, gx, gy);
+        const double t = target.at(x, y, k);
+        sum0 += (a - t) * (a - t);
+        sum1 += (b - t) * (b - t);
+        ++n;
+      }
+    }
+  if (n == 0) return {0.0, 0.0};
+  return {std::sqrt(sum0 / double(n)), std::sqrt(sum1 / double(n))};
+}
+
+}  // namespace view_rotation_detail
+
+// Fits dR (see the top of this file) so that the camera turned by dR renders
+// `target` as closely as possible, given `render`, the scene seen from the
+// unturned camera with intrinsics `K`. The two images must share their size
+// and channels.
+template <class Scalar>
+ViewRotationFit fit_view_rotation(const Image<Scalar>& render, const Image<Scalar>& target, const Intrinsics<Scalar>& K,
+                                  const ViewRotationParams& p = {}) {
+  namespace d = view_rotation_detail;
+  ensure(render.same_shape(target) && !render.empty(), "fit_view_rotation: render ", render.width, "x",
+         render.height, "x", render.channels, " and target ", target.width, "x", target.height, "x", target.channels,
+         " must be non-empty images of one shape");
+  ensure(K.is_finite() && K.fx > 0 && K.fy > 0, "fit_view_rotation: intrinsics must be finite with positive focal lengths");
+  ensure(p.levels >= 1 && p.iterations >= 0 && p.max_angle_deg > 0 && p.huber > 0,
+         "fit_view_rotation: levels >= 1, iterations >= 0, max_angle_deg > 0 and huber > 0 are required");
+  std::vector<d::Level> rp{d::to_level(render)}, tp{d::to_level(target)};
+  for (int l = 1; l < p.levels && std::min(rp.back().w, rp.back().h) >= 32; ++l) {
+    rp.push_back(d::half(rp.back()));
+    tp.push_back(d::half(tp.back()));
+  }
+  const d::Intr full{double(K.fx), double(K.fy), double(K.cx), double(K.cy)};
+  ViewRotationFit fit;
+  Eigen::Matrix3d dR = Eigen::Matrix3d::Identity();
+  for (int l = int(rp.size()) - 1; l >= 0; --l) {
+    const double s = double(rp[std::size_t(l)].w) / double(render.width);
+    const double sy = double(rp[std::size_t(l)].h) / double(render.height);
+    const d::Intr Kl{full.fx * s, full.fy * sy, full.cx * s, full.cy * sy};
+    const d::Level& R = rp[std::size_t(l)];
+    const d::Level& T = tp[std::size_t(l)];
+    for (int it = 0; it < p.iterations; ++it) {
+      Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d g = Eigen::Vector3d::Zero();
+      const Eigen::Matrix3d Rt = dR.transpose();
+      for (int y = 0; y < T.h; ++y)
+        for (int x = 0; x < T.w; ++x) {
+          const Eigen::Vector3d dir((x + 0.5 - Kl.cx) / Kl.fx, (y + 0.5 - Kl.cy) / Kl.fy, 1.0);
+          const Eigen::Vector3d q = Rt * dir;
+          double u, v;
+          if (!d::warp(Kl, Rt, x, y, u, v)) continue;
+          const double iz = 1.0 / q.z();
+          // d q / d w for dR <- exp(w) dR: q = dR^T exp(-w) dir ~ dR^T (dir + [dir]x w).
+          Eigen::Matrix3d cross;
+          cross << 0, -dir.z(), dir.y(), dir.z(), 0, -dir.x(), -dir.y(), dir.x(), 0;
+          const Eigen::Matrix3d Jq = Rt * cross;
+          Eigen::Matrix<double, 2, 3> Jpi;
+          Jpi << Kl.fx * iz, 0, -Kl.fx * q.x() * iz * iz, 0, Kl.fy * iz, -Kl.fy * q.y() * iz * iz;
+          const Eigen::Matrix<double, 2, 3> Jpix = Jpi * Jq;
+          for (int k = 0; k < T.c; ++k) {
+            double val, gx, gy;
+            if (!d::sample(R, u, v, k, val, gx, gy)) break;
+            const double r = val - T.at(x, y, k);
+            const double wgt = std::abs(r) <= p.huber ? 1.0 : p.huber / std::abs(r);
+            const Eigen::RowVector3d J = gx * Jpix.row(0) + gy * Jpix.row(1);
+            H.noalias() += wgt * J.transpose() * J;
+            g.noalias() += wgt * r * J.transpose();
+          }
+        }
+      // Levenberg damping keeps a step on a flat image (no texture) small.
+      H.diagonal() += Eigen::Vector3d::Constant(1e-6 * std::max(1.0, H.trace()));
+      const Eigen::Vector3d w = -H.ldlt().solve(g);
+      if (!w.allFinite()) break;
+      dR = d::exp_so3(w) * dR;
+      if (Constants<double>::rad2deg(w.norm()) < p.min_step_deg) break;
+    }
+  }
+  const auto [before, after] = d::rms_pair(rp[0], tp[0], full, dR);
+  fit.rms_before = before;
+  const double angle = d::angle_deg(dR);
+  if (std::isfinite(after) && after < fit.rms_before && angle <= p.max_angle_deg) {
+    fit.camera_R_camera = dR;
+    fit.angle_deg = angle;
+    fit.rms_after = after;
+    fit.refined = true;
+  } else {
+    fit.rms_after = fit.rms_before;
+  }
+  return fit;
+}
+
+}  // namespace orbitforge
