@@ -58,13 +58,14 @@ inline const std::vector<Column>& columns() {
       {"R1_paper_gap_psnr", "R1 paper-data gap PSNR", "Quality", "/quality/R1_paper/gap_heldout/psnr", 2},
       {"bound_gap_psnr", "bound gap PSNR", "Quality", "/quality/bound/gap_heldout/psnr", 2},
       {"gain_gap_psnr", "gain (R1 - R0 gap PSNR)", "Quality", "", 2},
-      {"R0_gap_fitted_psnr", "R0 gap PSNR (orientation fitted per view)", "Quality",
+      {"R0_gap_fitted_psnr", "R0 gap PSNR (orientation fitted per view)", "Quality, orientation fitted",
        "/quality/R0/gap_heldout_rotation_fitted/psnr", 2},
-      {"R1_gap_fitted_psnr", "R1 gap PSNR (orientation fitted per view)", "Quality",
+      {"R1_gap_fitted_psnr", "R1 gap PSNR (orientation fitted per view)", "Quality, orientation fitted",
        "/quality/R1/gap_heldout_rotation_fitted/psnr", 2},
-      {"R1_supported_ref_fitted_psnr", "R1 sup PSNR (withheld, reference's cameras, orientation fitted)", "Quality",
+      {"R1_supported_ref_fitted_psnr", "R1 sup PSNR (withheld, reference's cameras, orientation fitted)",
+       "Quality, orientation fitted",
        "/quality/R1/supported_heldout_at_reference_rotation_fitted/psnr", 2},
-      {"R1_gap_turn_mean", "R1 gap views' fitted turn, mean (deg)", "Quality",
+      {"R1_gap_turn_mean", "R1 gap views' fitted turn, mean (deg)", "Quality, orientation fitted",
        "/quality/R1/gap_heldout_rotation_fitted/rotation_fit/mean_deg", 2},
       {"R0_gap_ssim", "R0 gap SSIM", "Quality", "/quality/R0/gap_heldout/ssim", 3},
       {"R1_gap_ssim", "R1 gap SSIM", "Quality", "/quality/R1/gap_heldout/ssim", 3},
@@ -114,7 +115,8 @@ inline const std::vector<Column>& columns() {
 }
 
 inline const std::vector<std::string>& sections() {
-  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Fit to training frames",
+  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Quality, orientation fitted",
+                                             "Fit to training frames",
                                              "Completion", "Input", "Stage seconds", "Static proxy"};
   return s;
 }
