@@ -202,8 +202,8 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
   add_setting_flag(app, "--static-diagnostics", p.static_proxy_diagnostics, true,
                    "also render the static-proxy comparison (not part of the method)")
       ->group(method);
-  add_setting_flag(app, "--score-rotation-fitted", p.score_rotation_fitted, true,
-                   "also score withheld and gap views with each camera's orientation fitted to its image")
+  add_setting_flag(app, "--score-view-fitted", p.score_view_fitted, true,
+                   "also score withheld and gap views with each camera's turn and zoom fitted to its image")
       ->group(method);
   app.add_option("--checkpoint-every", p.checkpoint_every, "partial training checkpoints every N iterations (0 = none)")
       ->transform(at_least(0))

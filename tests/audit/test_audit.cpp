@@ -236,14 +236,14 @@ TEST_CASE("audit table tolerates missing keys, odd types and unmeasured quality"
   const std::string md = audit_markdown(t);
   REQUIRE(md.find("Static proxy") != std::string::npos);
   REQUIRE_NOTHROW(audit_csv(t));
-  // Orientation-fitted scores get their own section when a run has them.
+  // View-fitted scores get their own section when a run has them.
   json fitted = fake_report(120, 340, 18, 25, 100);
-  fitted["quality"]["R1"]["gap_heldout_rotation_fitted"] = {
-      {"psnr", 26.5}, {"ssim", 0.8}, {"views", 28}, {"rotation_fit", {{"mean_deg", 0.4}}}};
+  fitted["quality"]["R1"]["gap_heldout_view_fitted"] = {
+      {"psnr", 26.5}, {"ssim", 0.8}, {"views", 28}, {"view_fit", {{"turn_mean_deg", 0.4}}}};
   const json tf = audit_table({{"fitted", fitted, "", ""}});
   REQUIRE(value(tf, "fitted", "R1_gap_fitted_psnr") == 26.5);
   REQUIRE(value(tf, "fitted", "R1_gap_turn_mean") == 0.4);
-  REQUIRE_THAT(audit_markdown(tf), Catch::Contains("## Quality, orientation fitted"));
+  REQUIRE_THAT(audit_markdown(tf), Catch::Contains("## Quality, views fitted"));
   // Nothing at all: empty tables, no crash.
   const json none = audit_table({});
   REQUIRE(none["rows"].empty());
@@ -272,7 +272,7 @@ TEST_CASE("audit markdown: a row per input, failures with their error, '-' for m
   REQUIRE(count_prefix("| **median** |") == 7);
   REQUIRE(count_prefix("| **P90** |") == 7);
   REQUIRE(md.find("Static proxy") == std::string::npos);
-  REQUIRE(md.find("orientation fitted") == std::string::npos);  // opt-in scores: no empty section
+  REQUIRE(md.find("views fitted") == std::string::npos);  // opt-in scores: no empty section
   REQUIRE(md.find("missing \\| broken model") != std::string::npos);  // escaped, one line
   REQUIRE(md.find("2 of 3 inputs succeeded") != std::string::npos);
   // Values with their column's digits; the missing total is "-".

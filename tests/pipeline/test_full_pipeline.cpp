@@ -519,13 +519,13 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
         Approx(r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>()));
 }
 
-TEST_CASE("pipeline: orientation-fitted scores re-run the report only, and add rows beside the plain ones",
+TEST_CASE("pipeline: view-fitted scores re-run the report only, and add rows beside the plain ones",
           "[pipeline][report]") {
-  const fs::path dir = scratch().root / "rotation_fitted";
+  const fs::path dir = scratch().root / "view_fitted";
   copy_run(oracle_run(), dir);
   const auto plain = parse_file(dir / "report.json");
   PipelineParams p = oracle_params();
-  p.score_rotation_fitted = true;
+  p.score_view_fitted = true;
   PipelineRun<float> state;
   const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
   CHECK(state.ran == std::vector<std::string>{"report"});
@@ -533,18 +533,19 @@ TEST_CASE("pipeline: orientation-fitted scores re-run the report only, and add r
     INFO(k);
     const auto& q = r["quality"][k];
     CHECK(q["gap_heldout"] == plain["quality"][k]["gap_heldout"]);  // the plain row is unchanged
-    const auto& f = q["gap_heldout_rotation_fitted"];
+    const auto& f = q["gap_heldout_view_fitted"];
     REQUIRE(f.is_object());
     CHECK(f["views"] == q["gap_heldout"]["views"]);
-    const auto& fit = f["rotation_fit"];
-    CHECK(fit["turned_views"].get<int>() <= f["views"].get<int>());
-    CHECK(fit["max_deg"].get<double>() <= fit["limit_deg"].get<double>());
-    // A turn is kept only where it lowers the error: the score cannot fall by more
-    // than the pixels the turn brings in from outside the fitted overlap.
+    const auto& fit = f["view_fit"];
+    CHECK(fit["fitted_views"].get<int>() <= f["views"].get<int>());
+    CHECK(fit["turn_max_deg"].get<double>() <= fit["limits"]["turn_deg"].get<double>());
+    CHECK(fit["zoom_change_max"].get<double>() <= fit["limits"]["zoom_change"].get<double>());
+    // A fit is kept only where it lowers the error: the score cannot fall by more
+    // than the pixels the fit brings in from outside the overlap it was judged on.
     CHECK(f["psnr"].get<double>() > q["gap_heldout"]["psnr"].get<double>() - 0.2);
-    CHECK_FALSE(q.contains("supported_heldout_at_reference_rotation_fitted"));  // no reference here
+    CHECK_FALSE(q.contains("supported_heldout_at_reference_view_fitted"));  // no reference here
   }
-  CHECK(read_file_bytes((dir / "report.md").string()).find("turned about its centre") != std::string::npos);
+  CHECK(read_file_bytes((dir / "report.md").string()).find("turned and zoomed about its centre") != std::string::npos);
 }
 
 TEST_CASE("pipeline: the still check's figures and decision are in report.json", "[pipeline][levers]") {

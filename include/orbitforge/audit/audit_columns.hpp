@@ -58,15 +58,17 @@ inline const std::vector<Column>& columns() {
       {"R1_paper_gap_psnr", "R1 paper-data gap PSNR", "Quality", "/quality/R1_paper/gap_heldout/psnr", 2},
       {"bound_gap_psnr", "bound gap PSNR", "Quality", "/quality/bound/gap_heldout/psnr", 2},
       {"gain_gap_psnr", "gain (R1 - R0 gap PSNR)", "Quality", "", 2},
-      {"R0_gap_fitted_psnr", "R0 gap PSNR (orientation fitted per view)", "Quality, orientation fitted",
-       "/quality/R0/gap_heldout_rotation_fitted/psnr", 2},
-      {"R1_gap_fitted_psnr", "R1 gap PSNR (orientation fitted per view)", "Quality, orientation fitted",
-       "/quality/R1/gap_heldout_rotation_fitted/psnr", 2},
-      {"R1_supported_ref_fitted_psnr", "R1 sup PSNR (withheld, reference's cameras, orientation fitted)",
-       "Quality, orientation fitted",
-       "/quality/R1/supported_heldout_at_reference_rotation_fitted/psnr", 2},
-      {"R1_gap_turn_mean", "R1 gap views' fitted turn, mean (deg)", "Quality, orientation fitted",
-       "/quality/R1/gap_heldout_rotation_fitted/rotation_fit/mean_deg", 2},
+      {"R0_gap_fitted_psnr", "R0 gap PSNR (view fitted)", "Quality, views fitted",
+       "/quality/R0/gap_heldout_view_fitted/psnr", 2},
+      {"R1_gap_fitted_psnr", "R1 gap PSNR (view fitted)", "Quality, views fitted",
+       "/quality/R1/gap_heldout_view_fitted/psnr", 2},
+      {"R1_supported_ref_fitted_psnr", "R1 sup PSNR (withheld, reference's cameras, view fitted)",
+       "Quality, views fitted",
+       "/quality/R1/supported_heldout_at_reference_view_fitted/psnr", 2},
+      {"R1_gap_turn_mean", "R1 gap views' fitted turn, mean (deg)", "Quality, views fitted",
+       "/quality/R1/gap_heldout_view_fitted/view_fit/turn_mean_deg", 2},
+      {"R1_gap_zoom_mean", "R1 gap views' fitted zoom change, mean", "Quality, views fitted",
+       "/quality/R1/gap_heldout_view_fitted/view_fit/zoom_change_mean", 4},
       {"R0_gap_ssim", "R0 gap SSIM", "Quality", "/quality/R0/gap_heldout/ssim", 3},
       {"R1_gap_ssim", "R1 gap SSIM", "Quality", "/quality/R1/gap_heldout/ssim", 3},
       {"R0_train_psnr", "R0 sup PSNR (training frames)", "Fit to training frames",
@@ -115,7 +117,7 @@ inline const std::vector<Column>& columns() {
 }
 
 inline const std::vector<std::string>& sections() {
-  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Quality, orientation fitted",
+  static const std::vector<std::string> s = {"Coverage", "Orbit diagnostics", "Quality", "Quality, views fitted",
                                              "Fit to training frames",
                                              "Completion", "Input", "Stage seconds", "Static proxy"};
   return s;

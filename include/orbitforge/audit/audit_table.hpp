@@ -258,8 +258,8 @@ inline std::string audit_markdown(const nlohmann::json& table) {
     for (const auto& r : rows)
       for (const auto* c : sc)
         if (r.at("status") == "ok" && !r.at("values").at(c->at("key").get<std::string>()).is_null()) any = true;
-    // Opt-in figures (static-proxy diagnostics, orientation-fitted scores) only when some run has them.
-    if ((section == "Static proxy" || section == "Quality, orientation fitted") && !any) continue;
+    // Opt-in figures (static-proxy diagnostics, view-fitted scores) only when some run has them.
+    if ((section == "Static proxy" || section == "Quality, views fitted") && !any) continue;
     md << "\n## " << section << "\n\n| input |";
     for (const auto* c : sc) md << " " << c->at("title").get<std::string>() << " |";
     md << "\n|---|";

@@ -74,9 +74,10 @@ struct PipelineParams {
   int render_stride = 1;            // R0 / R1 at every K-th canonical view
   bool static_proxy_diagnostics = false;  // opt-in: G0 rendered frame-varying / fixed slice / MedianGS on the orbit
   // Opt-in scoring: the withheld and gap views scored again after each view's
-  // camera is turned about its centre to fit its image (metrics/view_rotation.hpp),
-  // which separates the scene's error from the scoring cameras' own.
-  bool score_rotation_fitted = false;
+  // camera is turned and zoomed about its centre to fit its image
+  // (metrics/view_alignment.hpp), which separates the scene's error from the
+  // scoring cameras' own.
+  bool score_view_fitted = false;
   std::size_t init_points = 20000;  // random initial cloud when the input has no points
   int checkpoint_every = 500;       // partial training checkpoints (0 = none)
   // The published densification schedule scaled to a short budget densifies every

@@ -79,18 +79,20 @@ inline std::string report_markdown(const nlohmann::json& r) {
     }
     md << " |\n";
   }
-  if (at(r, "quality", "R1", "gap_heldout_rotation_fitted").is_object()) {
-    md << "\nWith each scored view's camera turned about its centre to fit its image (the scene fixed; "
+  if (at(r, "quality", "R1", "gap_heldout_view_fitted").is_object()) {
+    md << "\nWith each scored view's camera turned and zoomed about its centre to fit its image (the scene fixed; "
           "this separates the scene's error from the scoring cameras' own):\n\n"
-          "| | set | PSNR | SSIM | views | views turned | mean / max turn (deg) |\n|---|---|---|---|---|---|---|\n";
+          "| | set | PSNR | SSIM | views | views fitted | turn mean / max (deg) | zoom change mean / max |\n"
+          "|---|---|---|---|---|---|---|---|\n";
     for (const char* k : {"R0", "R1"})
-      for (const char* s : {"gap_heldout_rotation_fitted", "supported_heldout_at_reference_rotation_fitted"}) {
+      for (const char* s : {"gap_heldout_view_fitted", "supported_heldout_at_reference_view_fitted"}) {
         const nlohmann::json& q = at(r, "quality", k, s);
         if (!q.is_object()) continue;
         md << "| " << k << " | " << (std::string(s).rfind("gap", 0) == 0 ? "gap" : "withheld, reference cameras")
            << " | " << num(q["psnr"]) << " | " << num(q["ssim"], 3) << " | " << num(q["views"]) << " | "
-           << num(at(q, "rotation_fit", "turned_views")) << " | " << num(at(q, "rotation_fit", "mean_deg"), 2)
-           << " / " << num(at(q, "rotation_fit", "max_deg"), 2) << " |\n";
+           << num(at(q, "view_fit", "fitted_views")) << " | " << num(at(q, "view_fit", "turn_mean_deg"), 2) << " / "
+           << num(at(q, "view_fit", "turn_max_deg"), 2) << " | " << num(at(q, "view_fit", "zoom_change_mean"), 4)
+           << " / " << num(at(q, "view_fit", "zoom_change_max"), 4) << " |\n";
       }
   }
   md << "\nInput: " << num(at(r, "points", "kept")) << " of " << num(at(r, "points", "total"))

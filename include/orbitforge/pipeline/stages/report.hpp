@@ -14,7 +14,7 @@
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
-#include "orbitforge/metrics/view_rotation.hpp"
+#include "orbitforge/metrics/view_alignment.hpp"
 #include "orbitforge/pipeline/completion/provider.hpp"
 #include "orbitforge/pipeline/inputs/input_json.hpp"
 #include "orbitforge/pipeline/report/pictures.hpp"
@@ -32,40 +32,46 @@ nlohmann::json coverage_json(const std::vector<double>& azimuth_deg) {
 }
 
 // `at_reference`: frames render at their scoring camera (PipelineInput::scoring_camera),
-// else at their own. `fit_rotation`: each view's camera is first turned about its
-// centre to fit its image (metrics/view_rotation.hpp, the scene fixed), then the
-// view is rendered again there and scored; the turns are reported.
+// else at their own. `fit_view`: each view's camera is first turned and zoomed
+// about its centre to fit its image (metrics/view_alignment.hpp, the scene
+// fixed), then the view is rendered again there and scored; the fits are reported.
 template <class Scalar>
 nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
-                          const std::vector<int>& frames, bool at_reference = true, bool fit_rotation = false) {
+                          const std::vector<int>& frames, bool at_reference = true, bool fit_view = false) {
   nlohmann::json j = {{"psnr", nullptr}, {"ssim", nullptr}, {"views", 0}};
   if (frames.empty()) return j;
   Renderer<Scalar> r = run.renderer();
   std::vector<ImageQuality> q;
-  double turn_sum = 0, turn_max = 0;
-  int turned = 0;
+  double turn_sum = 0, turn_max = 0, zoom_sum = 0, zoom_max = 0;
+  int fitted = 0;
   for (int i : frames) {
     const auto& fc = run.input->cameras[std::size_t(i)];
     Camera<Scalar> cam = at_reference ? run.input->scoring_camera(i) : fc.camera;
     const Image<Scalar>& image = run.input->images[std::size_t(i)];
-    if (fit_rotation) {
-      const ViewRotationFit f = fit_view_rotation(r.render(SceneView<Scalar>(scene), cam).color, image, cam.intrinsics);
-      if (f.refined) {
-        cam = turned_camera(cam, f.camera_R_camera);
-        turn_sum += f.angle_deg;
-        turn_max = std::max(turn_max, f.angle_deg);
-        ++turned;
+    if (fit_view) {
+      const ViewAlignment a = fit_view_alignment(r.render(SceneView<Scalar>(scene), cam).color, image, cam.intrinsics);
+      if (a.refined) {
+        cam = aligned_camera(cam, a);
+        turn_sum += a.angle_deg;
+        turn_max = std::max(turn_max, a.angle_deg);
+        zoom_sum += std::abs(a.zoom - 1);
+        zoom_max = std::max(zoom_max, std::abs(a.zoom - 1));
+        ++fitted;
       }
     }
     q.push_back(compare_images(r.render(SceneView<Scalar>(scene), cam).color, image, fc.name, run.params.threads));
   }
   const QualityMean m = mean_quality(q);
   j = {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}};
-  if (fit_rotation)
-    j["rotation_fit"] = {{"turned_views", turned},
-                         {"mean_deg", turned ? turn_sum / turned : 0.0},
-                         {"max_deg", turn_max},
-                         {"limit_deg", ViewRotationParams().max_angle_deg}};
+  if (fit_view) {
+    const ViewAlignmentParams limits;
+    j["view_fit"] = {{"fitted_views", fitted},
+                     {"turn_mean_deg", fitted ? turn_sum / fitted : 0.0},
+                     {"turn_max_deg", turn_max},
+                     {"zoom_change_mean", fitted ? zoom_sum / fitted : 0.0},
+                     {"zoom_change_max", zoom_max},
+                     {"limits", {{"turn_deg", limits.max_angle_deg}, {"zoom_change", limits.max_zoom}}}};
+  }
   return j;
 }
 
@@ -89,7 +95,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   std::uint64_t h = fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1")));
   for (const char* extra : {"g1_paper", "bound"})
     if (run.keys.count(extra)) h = fnv1a(run.keys.at(extra), h);
-  const std::string key = hex64(fnv1a(p.score_rotation_fitted ? "report v5 rotation-fitted" : "report v4", h));
+  const std::string key = hex64(fnv1a(p.score_view_fitted ? "report v5 view-fitted" : "report v4", h));
   run.keys["report"] = key;
   const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
                                             "top_view.png"};
@@ -150,13 +156,14 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                      {"gap_heldout", quality_of(run, scene, gap.heldout)}};
     if (!in.scoring_cameras.empty())
       j["supported_heldout_at_reference"] = quality_of(run, scene, supported_heldout, true);
-    // The same views with each camera's orientation fitted to its image: what
+    // The same views with each camera's turn and zoom fitted to its image: what
     // remains is the scene's error, not the yardstick's (on the user's path the
-    // reference's cameras disagree with the user's by tenths of a degree).
-    if (p.score_rotation_fitted) {
-      j["gap_heldout_rotation_fitted"] = quality_of(run, scene, gap.heldout, true, true);
+    // reference's cameras disagree with the user's by tenths of a degree and
+    // their focal lengths by a few per cent).
+    if (p.score_view_fitted) {
+      j["gap_heldout_view_fitted"] = quality_of(run, scene, gap.heldout, true, true);
       if (!in.scoring_cameras.empty())
-        j["supported_heldout_at_reference_rotation_fitted"] = quality_of(run, scene, supported_heldout, true, true);
+        j["supported_heldout_at_reference_view_fitted"] = quality_of(run, scene, supported_heldout, true, true);
     }
     return j;
   };

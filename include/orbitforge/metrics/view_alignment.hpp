@@ -1,28 +1,31 @@
 #pragma once
-// The rotation of a camera about its own centre that best aligns a rendered
-// view with the photograph it is scored against.
+// The turn and zoom of a camera, about its own centre, that best align a
+// rendered view with the photograph it is scored against.
 //
 // Scoring a scene at a camera from another estimate (the user's path: the
-// reference model's cameras, aligned by one similarity) adds the two
-// estimates' disagreement to the scene's error: a few tenths of a degree move
-// a sharp frame by several pixels and cost several dB. Fitting each scored
-// view's orientation to its image, the scene held fixed, separates the two
-// (test-view pose fitting, as evaluations of methods with estimated cameras
-// do). Only the orientation is fitted: at the distance of an object a small
-// sideways shift of the centre looks almost like a small turn, and a turn
-// about the centre needs no depth.
+// reference model's cameras, aligned by one similarity, with its own focal
+// length) adds the two estimates' disagreement to the scene's error: a few
+// tenths of a degree, or a focal length 3 % off, move a sharp frame's edges by
+// several pixels and cost several dB. Fitting each scored view's camera to its
+// image, the scene held fixed, separates the two (test-view pose fitting, as
+// evaluations of methods with estimated cameras do). The fit is made in the
+// image: a camera turned about its centre, or given another focal length, sees
+// a homography of what it saw, so no depth is needed; at the distance of an
+// object a small sideways shift of the centre looks almost like a turn, and a
+// shift along the axis almost like a zoom.
 //
-// A camera turned by dR about its centre (camera_R_world' = dR camera_R_world)
-// sees at pixel x what the unturned camera sees at W(x) = pi(K dR^T K^-1 x~):
-// a homography of the image. Gauss-Newton on the photometric error
-//   E(dR) = sum_x sum_c rho(render_c(W(x)) - target_c(x)),
+// The camera turned by dR (camera_R_world' = dR camera_R_world) with focal
+// lengths times s sees at pixel x what the given camera sees at
+// W(x) = pi(K dR^T K_s^-1 x~), K_s = K with fx, fy times s. Gauss-Newton on
+//   E(dR, s) = sum_x sum_c rho(render_c(W(x)) - target_c(x)),
 // rho Huber (a part of the scene that is wrong does not pull the fit), updates
-// composed on the left, dR <- exp(w) dR, coarse to fine over 2x2-box pyramids
+// dR <- exp(w) dR and log s <- log s + l, coarse to fine over 2x2-box pyramids
 // (the intrinsics halved with each level, pixel centres at i + 1/2). Pixels
 // whose W(x) leaves the rendered image are not counted.
 //
 // The fit is kept only when it lowers the error over the pixels both images
-// share and the turn stays within max_angle_deg; otherwise dR is the identity.
+// share and stays within max_angle_deg and max_zoom; otherwise the camera is
+// left as it was.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -37,33 +40,38 @@
 
 namespace orbitforge {
 
-struct ViewRotationParams {
+struct ViewAlignmentParams {
   int levels = 4;               // pyramid levels (the coarsest one first)
   int iterations = 15;          // Gauss-Newton steps per level at most
+  bool fit_zoom = true;         // false: the turn alone
   double max_angle_deg = 5.0;   // a larger turn is not a scoring correction: refused
+  double max_zoom = 0.1;        // |s - 1| beyond this is refused too
   double huber = 0.1;           // residual (per channel, [0, 1] values) where rho turns linear
   double min_step_deg = 1e-4;   // a level stops once a step is smaller than this
 };
 
-struct ViewRotationFit {
+struct ViewAlignment {
   Eigen::Matrix3d camera_R_camera = Eigen::Matrix3d::Identity();  // dR: new camera from the given one
+  double zoom = 1;             // s: the new focal lengths over the given ones
   double angle_deg = 0;        // |dR|
   double rms_before = 0;       // over the pixels both images share, full size
   double rms_after = 0;
-  bool refined = false;        // false: dR is the identity (no gain, or the turn was refused)
+  bool refined = false;        // false: the identity (no gain, or the fit was refused)
 };
 
-// The camera `c` turned by dR about its centre.
+// The camera `c` turned by a.camera_R_camera about its centre, its focal lengths times a.zoom.
 template <class Scalar>
-Camera<Scalar> turned_camera(const Camera<Scalar>& c, const Eigen::Matrix3d& camera_R_camera) {
+Camera<Scalar> aligned_camera(const Camera<Scalar>& c, const ViewAlignment& a) {
   Camera<Scalar> out = c;
   const auto centre = c.center();
-  out.R = (camera_R_camera * c.R.template cast<double>()).template cast<Scalar>();
+  out.R = (a.camera_R_camera * c.R.template cast<double>()).template cast<Scalar>();
   out.t = -out.R * centre;
+  out.intrinsics.fx = Scalar(double(c.intrinsics.fx) * a.zoom);
+  out.intrinsics.fy = Scalar(double(c.intrinsics.fy) * a.zoom);
   return out;
 }
 
-namespace view_rotation_detail {
+namespace view_alignment_detail {
 
 // One pyramid level in double, channel-interleaved as Image.
 struct Level {
@@ -123,26 +131,31 @@ struct Intr {
   double fx, fy, cx, cy;
 };
 
-// Where pixel (x, y) of the turned camera lands in the unturned one's image.
-inline bool warp(const Intr& K, const Eigen::Matrix3d& dR_transposed, int x, int y, double& u, double& v) {
-  const Eigen::Vector3d q = dR_transposed * Eigen::Vector3d((x + 0.5 - K.cx) / K.fx, (y + 0.5 - K.cy) / K.fy, 1.0);
+// The ray of pixel (x, y) of the camera with focal lengths times `zoom`.
+inline Eigen::Vector3d ray(const Intr& K, double zoom, int x, int y) {
+  return {(x + 0.5 - K.cx) / (zoom * K.fx), (y + 0.5 - K.cy) / (zoom * K.fy), 1.0};
+}
+
+// Where pixel (x, y) of the aligned camera lands in the given one's image.
+inline bool warp(const Intr& K, const Eigen::Matrix3d& dR_transposed, double zoom, int x, int y, double& u, double& v) {
+  const Eigen::Vector3d q = dR_transposed * ray(K, zoom, x, y);
   if (q.z() <= 0) return false;
   u = K.fx * q.x() / q.z() + K.cx;
   v = K.fy * q.y() / q.z() + K.cy;
   return true;
 }
 
-// Root mean squares of render(W(x)) - target(x) for the identity and for dR,
+// Root mean squares of render(W(x)) - target(x) for the identity and for (dR, zoom),
 // over the pixels both warps keep inside the render (no robust weight).
 inline std::pair<double, double> rms_pair(const Level& render, const Level& target, const Intr& K,
-                                          const Eigen::Matrix3d& dR) {
+                                          const Eigen::Matrix3d& dR, double zoom) {
   double sum0 = 0, sum1 = 0;
   std::size_t n = 0;
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity(), Rt = dR.transpose();
   for (int y = 0; y < target.h; ++y)
     for (int x = 0; x < target.w; ++x) {
       double u0, v0, u1, v1, a, b, gx, gy;
-      if (!warp(K, I, x, y, u0, v0) || !warp(K, Rt, x, y, u1, v1)) continue;
+      if (!warp(K, I, 1.0, x, y, u0, v0) || !warp(K, Rt, zoom, x, y, u1, v1)) continue;
       if (!sample(render, u0, v0, 0, a, gx, gy) || !sample(render, u1, v1, 0, b, gx, gy)) continue;
       for (int k = 0; k < target.c; ++k) {
         sample(render, u0, v0, k, a, gx, gy);
@@ -157,82 +170,91 @@ inline std::pair<double, double> rms_pair(const Level& render, const Level& targ
   return {std::sqrt(sum0 / double(n)), std::sqrt(sum1 / double(n))};
 }
 
-}  // namespace view_rotation_detail
+}  // namespace view_alignment_detail
 
-// Fits dR (see the top of this file) so that the camera turned by dR renders
-// `target` as closely as possible, given `render`, the scene seen from the
-// unturned camera with intrinsics `K`. The two images must share their size
-// and channels.
+// Fits dR and s (see the top of this file) so that the aligned camera renders
+// `target` as closely as possible, given `render`, the scene seen from the given
+// camera with intrinsics `K`. The two images must share their size and channels.
 template <class Scalar>
-ViewRotationFit fit_view_rotation(const Image<Scalar>& render, const Image<Scalar>& target, const Intrinsics<Scalar>& K,
-                                  const ViewRotationParams& p = {}) {
-  namespace d = view_rotation_detail;
-  ensure(render.same_shape(target) && !render.empty(), "fit_view_rotation: render ", render.width, "x",
+ViewAlignment fit_view_alignment(const Image<Scalar>& render, const Image<Scalar>& target, const Intrinsics<Scalar>& K,
+                                 const ViewAlignmentParams& p = {}) {
+  namespace d = view_alignment_detail;
+  ensure(render.same_shape(target) && !render.empty(), "fit_view_alignment: render ", render.width, "x",
          render.height, "x", render.channels, " and target ", target.width, "x", target.height, "x", target.channels,
          " must be non-empty images of one shape");
-  ensure(K.is_finite() && K.fx > 0 && K.fy > 0, "fit_view_rotation: intrinsics must be finite with positive focal lengths");
-  ensure(p.levels >= 1 && p.iterations >= 0 && p.max_angle_deg > 0 && p.huber > 0,
-         "fit_view_rotation: levels >= 1, iterations >= 0, max_angle_deg > 0 and huber > 0 are required");
+  ensure(K.is_finite() && K.fx > 0 && K.fy > 0,
+         "fit_view_alignment: intrinsics must be finite with positive focal lengths");
+  ensure(p.levels >= 1 && p.iterations >= 0 && p.max_angle_deg > 0 && p.max_zoom > 0 && p.huber > 0,
+         "fit_view_alignment: levels >= 1, iterations >= 0, max_angle_deg, max_zoom and huber > 0 are required");
   std::vector<d::Level> rp{d::to_level(render)}, tp{d::to_level(target)};
   for (int l = 1; l < p.levels && std::min(rp.back().w, rp.back().h) >= 32; ++l) {
     rp.push_back(d::half(rp.back()));
     tp.push_back(d::half(tp.back()));
   }
   const d::Intr full{double(K.fx), double(K.fy), double(K.cx), double(K.cy)};
-  ViewRotationFit fit;
   Eigen::Matrix3d dR = Eigen::Matrix3d::Identity();
+  double log_zoom = 0;
+  const int params = p.fit_zoom ? 4 : 3;
   for (int l = int(rp.size()) - 1; l >= 0; --l) {
-    const double s = double(rp[std::size_t(l)].w) / double(render.width);
+    const double sx = double(rp[std::size_t(l)].w) / double(render.width);
     const double sy = double(rp[std::size_t(l)].h) / double(render.height);
-    const d::Intr Kl{full.fx * s, full.fy * sy, full.cx * s, full.cy * sy};
+    const d::Intr Kl{full.fx * sx, full.fy * sy, full.cx * sx, full.cy * sy};
     const d::Level& R = rp[std::size_t(l)];
     const d::Level& T = tp[std::size_t(l)];
     for (int it = 0; it < p.iterations; ++it) {
-      Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d g = Eigen::Vector3d::Zero();
+      Eigen::Matrix4d H = Eigen::Matrix4d::Zero();
+      Eigen::Vector4d g = Eigen::Vector4d::Zero();
       const Eigen::Matrix3d Rt = dR.transpose();
+      const double zoom = std::exp(log_zoom);
       for (int y = 0; y < T.h; ++y)
         for (int x = 0; x < T.w; ++x) {
-          const Eigen::Vector3d dir((x + 0.5 - Kl.cx) / Kl.fx, (y + 0.5 - Kl.cy) / Kl.fy, 1.0);
+          const Eigen::Vector3d dir = d::ray(Kl, zoom, x, y);
           const Eigen::Vector3d q = Rt * dir;
           double u, v;
-          if (!d::warp(Kl, Rt, x, y, u, v)) continue;
+          if (!d::warp(Kl, Rt, zoom, x, y, u, v)) continue;
           const double iz = 1.0 / q.z();
-          // d q / d w for dR <- exp(w) dR: q = dR^T exp(-w) dir ~ dR^T (dir + [dir]x w).
+          // d q / d w for dR <- exp(w) dR: q = dR^T exp(-w) dir ~ dR^T (dir + [dir]x w);
+          // d q / d l for s <- s e^l: dir's x and y scale by e^-l.
+          Eigen::Matrix<double, 3, 4> Jq;
           Eigen::Matrix3d cross;
           cross << 0, -dir.z(), dir.y(), dir.z(), 0, -dir.x(), -dir.y(), dir.x(), 0;
-          const Eigen::Matrix3d Jq = Rt * cross;
+          Jq.leftCols<3>() = Rt * cross;
+          Jq.col(3) = Rt * Eigen::Vector3d(-dir.x(), -dir.y(), 0);
           Eigen::Matrix<double, 2, 3> Jpi;
           Jpi << Kl.fx * iz, 0, -Kl.fx * q.x() * iz * iz, 0, Kl.fy * iz, -Kl.fy * q.y() * iz * iz;
-          const Eigen::Matrix<double, 2, 3> Jpix = Jpi * Jq;
+          const Eigen::Matrix<double, 2, 4> Jpix = Jpi * Jq;
           for (int k = 0; k < T.c; ++k) {
             double val, gx, gy;
             if (!d::sample(R, u, v, k, val, gx, gy)) break;
             const double r = val - T.at(x, y, k);
             const double wgt = std::abs(r) <= p.huber ? 1.0 : p.huber / std::abs(r);
-            const Eigen::RowVector3d J = gx * Jpix.row(0) + gy * Jpix.row(1);
+            const Eigen::RowVector4d J = gx * Jpix.row(0) + gy * Jpix.row(1);
             H.noalias() += wgt * J.transpose() * J;
             g.noalias() += wgt * r * J.transpose();
           }
         }
       // Levenberg damping keeps a step on a flat image (no texture) small.
-      H.diagonal() += Eigen::Vector3d::Constant(1e-6 * std::max(1.0, H.trace()));
-      const Eigen::Vector3d w = -H.ldlt().solve(g);
-      if (!w.allFinite()) break;
-      dR = d::exp_so3(w) * dR;
-      if (Constants<double>::rad2deg(w.norm()) < p.min_step_deg) break;
+      H.diagonal() += Eigen::Vector4d::Constant(1e-6 * std::max(1.0, H.trace()));
+      Eigen::Vector4d step = Eigen::Vector4d::Zero();
+      step.head(params) = -H.topLeftCorner(params, params).ldlt().solve(g.head(params));
+      if (!step.allFinite()) break;
+      dR = d::exp_so3(step.head<3>()) * dR;
+      log_zoom += step(3);
+      if (Constants<double>::rad2deg(step.head<3>().norm()) < p.min_step_deg && std::abs(step(3)) < 1e-6) break;
     }
   }
-  const auto [before, after] = d::rms_pair(rp[0], tp[0], full, dR);
+  ViewAlignment fit;
+  const double zoom = std::exp(log_zoom);
+  const auto [before, after] = d::rms_pair(rp[0], tp[0], full, dR, zoom);
   fit.rms_before = before;
+  fit.rms_after = before;
   const double angle = d::angle_deg(dR);
-  if (std::isfinite(after) && after < fit.rms_before && angle <= p.max_angle_deg) {
+  if (std::isfinite(after) && after < before && angle <= p.max_angle_deg && std::abs(zoom - 1) <= p.max_zoom) {
     fit.camera_R_camera = dR;
+    fit.zoom = zoom;
     fit.angle_deg = angle;
     fit.rms_after = after;
     fit.refined = true;
-  } else {
-    fit.rms_after = fit.rms_before;
   }
   return fit;
 }
