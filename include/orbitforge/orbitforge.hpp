@@ -23,6 +23,7 @@
 #include "orbitforge/io/transforms_json.hpp"
 #include "orbitforge/metrics/coverage.hpp"
 #include "orbitforge/metrics/image.hpp"
+#include "orbitforge/metrics/view_alignment.hpp"
 #include "orbitforge/nn/adam.hpp"
 #include "orbitforge/nn/dense.hpp"
 #include "orbitforge/nn/encoding.hpp"

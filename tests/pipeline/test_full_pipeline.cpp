@@ -546,6 +546,8 @@ TEST_CASE("pipeline: view-fitted scores re-run the report only, and add rows bes
     CHECK_FALSE(q.contains("supported_heldout_at_reference_view_fitted"));  // no reference here
   }
   CHECK(read_file_bytes((dir / "report.md").string()).find("turned and zoomed about its centre") != std::string::npos);
+  // Evaluation, not the method: its time is kept out of the report stage's.
+  CHECK(r["comparison_seconds"]["view_fitted_scoring"].get<double>() > 0);
 }
 
 TEST_CASE("pipeline: the still check's figures and decision are in report.json", "[pipeline][levers]") {
