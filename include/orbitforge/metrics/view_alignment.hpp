@@ -101,13 +101,17 @@ inline Level half(const Level& a) {
   return b;
 }
 
-// Bilinear sample of channel k and its x / y derivatives at continuous pixel
-// coordinates (u, v) (centres at i + 1/2); false outside the interior where a
-// central difference exists.
-inline bool sample(const Level& l, double u, double v, int k, double& value, double& dx, double& dy) {
+// Whether (u, v) (continuous pixel coordinates, centres at i + 1/2) lies in the
+// interior where a bilinear sample of central differences exists.
+inline bool inside(const Level& l, double u, double v) {
+  const int x0 = int(std::floor(u - 0.5)), y0 = int(std::floor(v - 0.5));
+  return x0 >= 1 && y0 >= 1 && x0 + 2 < l.w && y0 + 2 < l.h;
+}
+
+// Bilinear sample of channel k and its x / y derivatives at (u, v), which must be inside().
+inline void sample(const Level& l, double u, double v, int k, double& value, double& dx, double& dy) {
   const double fx = u - 0.5, fy = v - 0.5;
   const int x0 = int(std::floor(fx)), y0 = int(std::floor(fy));
-  if (x0 < 1 || y0 < 1 || x0 + 2 >= l.w || y0 + 2 >= l.h) return false;
   const double ax = fx - x0, ay = fy - y0;
   auto lerp = [&](auto f) {
     return (1 - ay) * ((1 - ax) * f(x0, y0) + ax * f(x0 + 1, y0)) + ay * ((1 - ax) * f(x0, y0 + 1) + ax * f(x0 + 1, y0 + 1));
@@ -115,7 +119,6 @@ inline bool sample(const Level& l, double u, double v, int k, double& value, dou
   value = lerp([&](int x, int y) { return l.at(x, y, k); });
   dx = lerp([&](int x, int y) { return 0.5 * (l.at(x + 1, y, k) - l.at(x - 1, y, k)); });
   dy = lerp([&](int x, int y) { return 0.5 * (l.at(x, y + 1, k) - l.at(x, y - 1, k)); });
-  return true;
 }
 
 // exp of a rotation vector.
@@ -136,13 +139,17 @@ inline Eigen::Vector3d ray(const Intr& K, double zoom, int x, int y) {
   return {(x + 0.5 - K.cx) / (zoom * K.fx), (y + 0.5 - K.cy) / (zoom * K.fy), 1.0};
 }
 
-// Where pixel (x, y) of the aligned camera lands in the given one's image.
-inline bool warp(const Intr& K, const Eigen::Matrix3d& dR_transposed, double zoom, int x, int y, double& u, double& v) {
-  const Eigen::Vector3d q = dR_transposed * ray(K, zoom, x, y);
+// The given camera's pixel of ray q (in its frame); false behind it.
+inline bool project(const Intr& K, const Eigen::Vector3d& q, double& u, double& v) {
   if (q.z() <= 0) return false;
   u = K.fx * q.x() / q.z() + K.cx;
   v = K.fy * q.y() / q.z() + K.cy;
   return true;
+}
+
+// Where pixel (x, y) of the aligned camera lands in the given one's image.
+inline bool warp(const Intr& K, const Eigen::Matrix3d& dR_transposed, double zoom, int x, int y, double& u, double& v) {
+  return project(K, dR_transposed * ray(K, zoom, x, y), u, v);
 }
 
 // Root mean squares of render(W(x)) - target(x) for the identity and for (dR, zoom),
@@ -156,7 +163,7 @@ inline std::pair<double, double> rms_pair(const Level& render, const Level& targ
     for (int x = 0; x < target.w; ++x) {
       double u0, v0, u1, v1, a, b, gx, gy;
       if (!warp(K, I, 1.0, x, y, u0, v0) || !warp(K, Rt, zoom, x, y, u1, v1)) continue;
-      if (!sample(render, u0, v0, 0, a, gx, gy) || !sample(render, u1, v1, 0, b, gx, gy)) continue;
+      if (!inside(render, u0, v0) || !inside(render, u1, v1)) continue;
       for (int k = 0; k < target.c; ++k) {
         sample(render, u0, v0, k, a, gx, gy);
         sample(render, u1, v1, k, b, gx, gy);
@@ -211,7 +218,7 @@ ViewAlignment fit_view_alignment(const Image<Scalar>& render, const Image<Scalar
           const Eigen::Vector3d dir = d::ray(Kl, zoom, x, y);
           const Eigen::Vector3d q = Rt * dir;
           double u, v;
-          if (!d::warp(Kl, Rt, zoom, x, y, u, v)) continue;
+          if (!d::project(Kl, q, u, v) || !d::inside(R, u, v)) continue;
           const double iz = 1.0 / q.z();
           // d q / d w for dR <- exp(w) dR: q = dR^T exp(-w) dir ~ dR^T (dir + [dir]x w);
           // d q / d l for s <- s e^l: dir's x and y scale by e^-l.
@@ -225,7 +232,7 @@ ViewAlignment fit_view_alignment(const Image<Scalar>& render, const Image<Scalar
           const Eigen::Matrix<double, 2, 4> Jpix = Jpi * Jq;
           for (int k = 0; k < T.c; ++k) {
             double val, gx, gy;
-            if (!d::sample(R, u, v, k, val, gx, gy)) break;
+            d::sample(R, u, v, k, val, gx, gy);
             const double r = val - T.at(x, y, k);
             const double wgt = std::abs(r) <= p.huber ? 1.0 : p.huber / std::abs(r);
             const Eigen::RowVector4d J = gx * Jpix.row(0) + gy * Jpix.row(1);

@@ -34,7 +34,8 @@ nlohmann::json coverage_json(const std::vector<double>& azimuth_deg) {
 // `at_reference`: frames render at their scoring camera (PipelineInput::scoring_camera),
 // else at their own. `fit_view`: each view's camera is first turned and zoomed
 // about its centre to fit its image (metrics/view_alignment.hpp, the scene
-// fixed), then the view is rendered again there and scored; the fits are reported.
+// fixed), and where the fit moved it the view is rendered again there and scored;
+// the fits are reported.
 template <class Scalar>
 nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
                           const std::vector<int>& frames, bool at_reference = true, bool fit_view = false) {
@@ -48,10 +49,12 @@ nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Sc
     const auto& fc = run.input->cameras[std::size_t(i)];
     Camera<Scalar> cam = at_reference ? run.input->scoring_camera(i) : fc.camera;
     const Image<Scalar>& image = run.input->images[std::size_t(i)];
+    Image<Scalar> rendered = r.render(SceneView<Scalar>(scene), cam).color;
     if (fit_view) {
-      const ViewAlignment a = fit_view_alignment(r.render(SceneView<Scalar>(scene), cam).color, image, cam.intrinsics);
+      const ViewAlignment a = fit_view_alignment(rendered, image, cam.intrinsics);
       if (a.refined) {
         cam = aligned_camera(cam, a);
+        rendered = r.render(SceneView<Scalar>(scene), cam).color;  // only a moved camera renders again
         turn_sum += a.angle_deg;
         turn_max = std::max(turn_max, a.angle_deg);
         zoom_sum += std::abs(a.zoom - 1);
@@ -59,7 +62,7 @@ nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Sc
         ++fitted;
       }
     }
-    q.push_back(compare_images(r.render(SceneView<Scalar>(scene), cam).color, image, fc.name, run.params.threads));
+    q.push_back(compare_images(rendered, image, fc.name, run.params.threads));
   }
   const QualityMean m = mean_quality(q);
   j = {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}};
