@@ -241,7 +241,7 @@ int main(int argc, char** argv) {
             run.keys["cameras"] = key;
             run_pipeline(input, p, dest, nullptr, &run);
           } else {
-            const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, flags);
+            const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, dest, flags);
             run_pipeline(input, p, dest);
           }
         } catch (const PipelineStopped& e) {

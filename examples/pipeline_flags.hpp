@@ -23,6 +23,7 @@
 #include "orbitforge/pipeline/protocol.hpp"
 #include "orbitforge/pipeline/report/reference.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
+#include "orbitforge/pipeline/stages/points.hpp"
 #include "orbitforge/train/init.hpp"
 
 namespace orbitforge::cli {
@@ -43,6 +44,9 @@ struct PipelineFlags {
   double focal_px = 0, fov_deg = 0;
   bool focal_search = false;
   std::string orbit_refine = "flagged";
+  // A COLMAP model without 3D points: COLMAP triangulates the training frames at
+  // their cameras (stages/points.hpp), else training starts from a random cloud.
+  bool triangulate = true;
 };
 
 inline const char* kInputGroup = "Input";
@@ -152,8 +156,12 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
       ->transform(at_least(9))
       ->check(CLI::Range(9, kMaxOrbitViews))
       ->group(method);
+  app.add_flag_function("--no-triangulate", [&f](std::int64_t) { f.triangulate = false; },
+               "a COLMAP model without 3D points starts from --init-points random points instead of points COLMAP "
+               "triangulates from the training frames at their cameras")
+      ->group(method);
   app.add_option("--init-points", p.init_points,
-                 "random initial points when the input has none (the embedded synthetic input)")
+                 "random initial points when the input has none (the embedded synthetic input, --no-triangulate)")
       ->transform(at_least(1))
       ->check(CLI::Range(std::size_t(1), kMaxRandomPoints))
       ->group(method);
@@ -302,13 +310,32 @@ void finish_recorded_input(const std::string& program, PipelineInput<Scalar>& in
                  bg.reason.c_str());
 }
 
-// A COLMAP folder as every pipeline program loads it.
+// A COLMAP folder as every pipeline program loads it; a model without points
+// the training frames saw gets them from the points stage (into out/points),
+// when colmap is installed.
 template <class Scalar>
-PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir,
+PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir, const std::string& out,
                                           const PipelineFlags& f) {
   const auto size = working_size(f);
   PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size, /*normalise=*/true, f.image_order);
   finish_recorded_input(program, input, f);
+  if (f.triangulate && needs_triangulated_points(input) && training_source(input).size() >= 2) {
+    const bool progress = f.params.progress;
+    if (find_program("colmap").empty()) {
+      if (progress)
+        std::fprintf(stderr, "%s: the model has no 3D points and colmap is not installed (Debian package colmap): "
+                     "training starts from a random cloud\n", program.c_str());
+    } else {
+      if (progress) std::fprintf(stderr, "== stage points\n");
+      PointStageParams pp;
+      pp.threads = f.params.threads;
+      pp.log = [progress](const std::string& line) {
+        if (progress) std::fprintf(stderr, "%s\n", line.c_str());
+      };
+      const PointStageResult r = stage_points(out, input, pp);
+      input.description += " (" + std::to_string(r.points) + " points triangulated from the training frames)";
+    }
+  }
   return input;
 }
 

@@ -24,7 +24,8 @@ nlohmann::json source_frames_json(const PipelineInput<Scalar>& in) {
 template <class Scalar>
 nlohmann::json points_json(const PipelineInput<Scalar>& in) {
   const SourcePoints<Scalar> sp = source_points(in);
-  return {{"total", sp.total}, {"kept", sp.kept}, {"dropped", sp.dropped}, {"rule", sp.rule}};
+  return {{"total", sp.total}, {"kept", sp.kept}, {"dropped", sp.dropped}, {"rule", sp.rule},
+          {"origin", in.points_origin}};
 }
 
 }  // namespace orbitforge

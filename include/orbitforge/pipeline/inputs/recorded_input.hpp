@@ -67,6 +67,7 @@ struct PipelineInput {
   // frames saw a point, and source_points() uses none of them.
   std::vector<Scalar> points, colors;
   std::vector<std::vector<int>> point_frames;
+  std::string points_origin = "the input's model";  // or the points stage (stages/points.hpp)
   int width = 0, height = 0;
   std::string description;                   // where it came from (for the report)
   std::array<double, 3> background{{0, 0, 0}};
