@@ -9,7 +9,6 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <random>
 #include <string>
 #include <vector>
 
@@ -20,6 +19,7 @@
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 #include "support/data.hpp"
+#include "support/temp_dir.hpp"
 #include "orbitforge/pipeline/inputs/colmap_input.hpp"
 
 using namespace orbitforge;
@@ -29,19 +29,8 @@ using namespace orbitforge;
 namespace cameras_stage_test {
 namespace fs = std::filesystem;
 
-struct TempDir {
-  fs::path root;
-  TempDir() {
-    std::random_device rd;
-    root = fs::temp_directory_path() / ("orbitforge_cameras_test_" + std::to_string(rd()));
-    fs::create_directories(root);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(root, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
+struct TempDir : orbitforge_test::TempDir {
+  TempDir() : orbitforge_test::TempDir("cameras_test") {}
 };
 
 // Sets PATH for the scope and restores it.

@@ -9,12 +9,12 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <random>
 #include <set>
 #include <stdexcept>
 
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "support/data.hpp"
+#include "support/temp_dir.hpp"
 #include "orbitforge/pipeline/inputs/colmap_input.hpp"
 #include "orbitforge/pipeline/inputs/synthetic_pipeline_input.hpp"
 
@@ -29,17 +29,8 @@ constexpr bool kQuick = true;
 constexpr bool kQuick = false;
 #endif
 
-struct Scratch {
-  fs::path root;
-  Scratch() {
-    std::random_device rd;
-    root = fs::temp_directory_path() / ("orbitforge_pipeline_test_" + std::to_string(rd()));
-    fs::create_directories(root);
-  }
-  ~Scratch() {
-    std::error_code ec;
-    fs::remove_all(root, ec);
-  }
+struct Scratch : orbitforge_test::TempDir {
+  Scratch() : orbitforge_test::TempDir("pipeline_test") {}
 };
 
 Scratch& scratch() {

@@ -6,7 +6,6 @@
 #include <catch2/catch.hpp>
 
 #include <filesystem>
-#include <random>
 #include <string>
 
 #include "orbitforge/io/atomic_file.hpp"
@@ -16,25 +15,15 @@
 #include "orbitforge/pipeline/inputs/image_order.hpp"
 #include "orbitforge/pipeline/stages/points.hpp"
 #include "support/data.hpp"
+#include "support/temp_dir.hpp"
 
 using namespace orbitforge;
 
 namespace points_stage_test {
 namespace fs = std::filesystem;
 
-struct TempDir {
-  fs::path root;
-  TempDir() {
-    std::random_device rd;
-    root = fs::temp_directory_path() / ("orbitforge_points_test_" + std::to_string(rd()));
-    fs::create_directories(root);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(root, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
+struct TempDir : orbitforge_test::TempDir {
+  TempDir() : orbitforge_test::TempDir("points_test") {}
 };
 
 TEST_CASE("points stage: the temple's triangulated points lie on the temple and come from training frames only",
