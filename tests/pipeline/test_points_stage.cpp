@@ -87,6 +87,17 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
     CHECK(again.points == in.points);
     CHECK(again.point_frames == in.point_frames);
   }
+  SECTION("more frames than the exhaustive limit are matched in sequence") {
+    PipelineInput<S> again = load_colmap_input<S>(dir, "1-8", WorkingSize::from_pair(512, 384), true, ImageOrder::ring);
+    withhold_every(again, 4);
+    PointStageParams seq = p;
+    seq.exhaustive_up_to = 4;
+    const PointStageResult r2 = stage_points(out, again, seq);
+    CHECK(r2.ran);  // the matcher is part of the key
+    CHECK(fs::exists(t.root / "points" / "logs" / "sequential_matcher.log"));
+    CHECK(!fs::exists(t.root / "points" / "logs" / "exhaustive_matcher.log"));
+    CHECK(r2.points >= 100);
+  }
   SECTION("a damaged model or other training frames run COLMAP again") {
     const fs::path points_file = t.root / "points" / "sparse" / "points3D.bin";
     std::string bytes = read_file_bytes(points_file.string());

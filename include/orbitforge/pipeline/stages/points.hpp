@@ -8,7 +8,9 @@
 //                            size, the loaded pixels); NNNN = the frame's index
 //   points/database.db       their features (one extractor run per frame, so
 //                            image and camera ids follow the frames' order) and
-//                            exhaustive matches
+//                            matches: every pair up to 40 frames
+//                            (PointStageParams), else each frame with its 10
+//                            neighbours in order (all pairs grow as frames^2)
 //   points/known/            the frames' cameras as a text model, no points
 //   points/sparse/           point_triangulator's model (cameras held fixed)
 //   points/logs/*.log        each tool's command line and output
@@ -39,6 +41,7 @@
 namespace orbitforge {
 
 struct PointStageParams {
+  std::size_t exhaustive_up_to = 40;  // training frames up to which every pair is matched
   int threads = 0;  // COLMAP's threads (0 = all)
   std::function<void(const std::string&)> log;  // progress lines (stderr when empty)
 };
@@ -109,7 +112,9 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
   const ColmapModel known = points_detail::known_camera_model(in, frames);
 
   // The key: what COLMAP sees (pixels, cameras, names) and the tools' settings.
-  nlohmann::json settings = {{"frames", frames}, {"matcher", "exhaustive"}, {"camera_model", "PINHOLE"}};
+  const bool exhaustive = frames.size() <= p.exhaustive_up_to;
+  nlohmann::json settings = {
+      {"frames", frames}, {"matcher", exhaustive ? "exhaustive" : "sequential 10"}, {"camera_model", "PINHOLE"}};
   std::uint64_t h = kFnv1aSeed;
   for (int f : frames) {
     const auto& img = in.images[std::size_t(f)];
@@ -147,6 +152,9 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
     auto run = [&](const ToolCommand& cmd, const std::string& log_name) { run_tool(cmd, (logs / log_name).string()); };
     const auto env = cameras_detail::colmap_env();
     const std::string threads = std::to_string(p.threads > 0 ? p.threads : -1);
+    CameraStageParams colmap_settings;  // the cameras stage's extractor and sequential matcher
+    colmap_settings.camera_model = "PINHOLE";
+    colmap_settings.threads = p.threads;
     for (const auto& [id, im] : known.images) {
       // One run per frame: the database numbers images and cameras in the order
       // it stores them, which a run over a folder does not fix.
@@ -156,19 +164,21 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
       using cameras_detail::number_text;
       const std::string params = number_text(c.params[0]) + "," + number_text(c.params[1]) + "," +
                                  number_text(c.params[2]) + "," + number_text(c.params[3]);
-      run(ToolCommand{"colmap feature_extractor",
-                      {"colmap", "feature_extractor", "--database_path", database.string(), "--image_path",
-                       images_dir.string(), "--image_list_path", list.string(), "--ImageReader.camera_model",
-                       "PINHOLE", "--ImageReader.camera_params", params, "--SiftExtraction.use_gpu", "0",
-                       "--SiftExtraction.num_threads", threads, "--log_to_stderr", "1"},
-                      env},
-          "feature_extractor_" + std::to_string(id) + ".log");
+      ToolCommand fe = colmap_feature_extractor_command(database.string(), images_dir.string(), colmap_settings);
+      for (const std::string& arg : {std::string("--image_list_path"), list.string(),
+                                     std::string("--ImageReader.camera_params"), params})
+        fe.argv.push_back(arg);
+      run(fe, "feature_extractor_" + std::to_string(id) + ".log");
     }
-    run(ToolCommand{"colmap exhaustive_matcher",
-                    {"colmap", "exhaustive_matcher", "--database_path", database.string(), "--SiftMatching.use_gpu",
-                     "0", "--SiftMatching.num_threads", threads, "--log_to_stderr", "1"},
-                    env},
-        "exhaustive_matcher.log");
+    if (exhaustive) {
+      run(ToolCommand{"colmap exhaustive_matcher",
+                      {"colmap", "exhaustive_matcher", "--database_path", database.string(), "--SiftMatching.use_gpu",
+                       "0", "--SiftMatching.num_threads", threads, "--log_to_stderr", "1"},
+                      env},
+          "exhaustive_matcher.log");
+    } else {
+      run(colmap_sequential_matcher_command(database.string(), colmap_settings), "sequential_matcher.log");
+    }
     // Frames that share too few features leave nothing to triangulate, and
     // point_triangulator then stops on a failed bundle adjustment: no points,
     // not an error (training starts from a random cloud, as without the stage).
