@@ -241,8 +241,11 @@ int main(int argc, char** argv) {
             run.keys["cameras"] = key;
             run_pipeline(input, p, dest, nullptr, &run);
           } else {
-            const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, dest, flags);
-            run_pipeline(input, p, dest);
+            std::string key;
+            const PipelineInput<S> input = cli::load_recorded_input<S>("audit", dir, dest, flags, &key);
+            PipelineRun<S> run;
+            if (!key.empty()) run.keys["points"] = key;
+            run_pipeline(input, p, dest, nullptr, &run);
           }
         } catch (const PipelineStopped& e) {
           failed.error = e.what();

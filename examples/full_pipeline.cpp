@@ -236,7 +236,9 @@ int main(int argc, char** argv) {
       input = cli::load_estimated_input<S>("full_pipeline", out, cp, flags, in.reference, &key);
       run.keys["cameras"] = key;  // the report counts its time
     } else if (!in.colmap.empty()) {
-      input = cli::load_recorded_input<S>("full_pipeline", in.colmap, out, flags);
+      std::string key;
+      input = cli::load_recorded_input<S>("full_pipeline", in.colmap, out, flags, &key);
+      if (!key.empty()) run.keys["points"] = key;  // the report counts its time
     } else {
       if (!in.transforms.empty()) {
         input = load_transforms_input<S>(in.transforms, in.images, flags.frames, size);

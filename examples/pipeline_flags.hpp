@@ -312,10 +312,11 @@ void finish_recorded_input(const std::string& program, PipelineInput<Scalar>& in
 
 // A COLMAP folder as every pipeline program loads it; a model without points
 // the training frames saw gets them from the points stage (into out/points),
-// when colmap is installed.
+// when colmap is installed. points_key gets the stage's key when it recorded
+// points (the report counts its time).
 template <class Scalar>
 PipelineInput<Scalar> load_recorded_input(const std::string& program, const std::string& dir, const std::string& out,
-                                          const PipelineFlags& f) {
+                                          const PipelineFlags& f, std::string* points_key = nullptr) {
   const auto size = working_size(f);
   PipelineInput<Scalar> input = load_colmap_input<Scalar>(dir, f.frames, size, /*normalise=*/true, f.image_order);
   finish_recorded_input(program, input, f);
@@ -333,7 +334,10 @@ PipelineInput<Scalar> load_recorded_input(const std::string& program, const std:
         if (progress) std::fprintf(stderr, "%s\n", line.c_str());
       };
       const PointStageResult r = stage_points(out, input, pp);
-      input.description += " (" + std::to_string(r.points) + " points triangulated from the training frames)";
+      if (r.points > 0) {
+        input.description += " (" + std::to_string(r.points) + " points triangulated from the training frames)";
+        if (points_key) *points_key = r.key;
+      }
     }
   }
   return input;

@@ -84,6 +84,8 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
     const PointStageResult r2 = stage_points(out, again, p);
     CHECK(r2.skipped);
     CHECK(!r2.ran);
+    CHECK(r2.key == r.key);
+    CHECK(!r2.key.empty());
     CHECK(again.points == in.points);
     CHECK(again.point_frames == in.point_frames);
   }
@@ -147,6 +149,7 @@ TEST_CASE("points stage: frames with nothing in common give no points and leave 
   CHECK(r.ran);
   CHECK(r.points == 0);
   CHECK(in.points.empty());
+  CHECK(r.key.empty());
   CHECK(said.find("COLMAP triangulated no points from the 2 training frames") != std::string::npos);
   CHECK(!fs::exists(t.root / "stages" / "points.json"));
 }

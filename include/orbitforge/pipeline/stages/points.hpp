@@ -49,6 +49,7 @@ struct PointStageParams {
 struct PointStageResult {
   bool ran = false;       // COLMAP ran (else the record verified, or nothing was needed)
   bool skipped = false;   // the record verified: nothing ran
+  std::string key;        // stages/points.json's key, when there is a record (points found)
   std::size_t frames = 0; // training frames given to COLMAP
   std::size_t points = 0; // points triangulated
   double seconds = 0;
@@ -195,7 +196,8 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
       r.ran = true;
       r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       r.summary = "   points: COLMAP triangulated no points from the " + std::to_string(r.frames) +
-                  " training frames (too few shared features; " + (logs / "point_triangulator.log").string() + ")";
+                  " training frames (point_triangulator stopped, as it does when the frames share too few "
+                  "features; its log: " + (logs / "point_triangulator.log").string() + ")";
       log(r.summary);
       return r;
     }
@@ -234,6 +236,7 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
     settings["points"] = r.points;
     record_stage(out, "points", key, r.seconds, settings, outputs);
   }
+  r.key = key;
   char b[200];
   std::snprintf(b, sizeof(b), "   points: %zu points triangulated by COLMAP from %zu training frames at their cameras%s",
                 r.points, r.frames, r.skipped ? " (outputs verified, skipped)" : "");

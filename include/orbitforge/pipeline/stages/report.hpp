@@ -215,11 +215,14 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
     stages[s] = secs;
     total += secs;
   }
-  // The camera estimation of a video or image-folder input (stages/cameras.hpp), when the caller ran it.
-  if (run.keys.count("cameras")) {
-    stages["cameras"] = recorded_seconds(run.out, "cameras");
-    total += stages["cameras"].get<double>();
-  }
+  // The stages before the method's own, when the caller ran them: the camera
+  // estimation of a video or image-folder input (stages/cameras.hpp), the points
+  // of a model without them (stages/points.hpp).
+  for (const char* s : {"cameras", "points"})
+    if (run.keys.count(s)) {
+      stages[s] = recorded_seconds(run.out, s);
+      total += stages[s].get<double>();
+    }
   // Comparisons an audit asked for are not part of the method's time.
   nlohmann::json comparisons = nlohmann::json::object();
   for (const char* s : {"g1_paper", "bound"})
