@@ -21,31 +21,9 @@
 
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
+#include "support/temp_dir.hpp"
 
 namespace orbitforge_test {
-
-// A fresh folder under the system temp dir, removed at scope exit.
-class TempDir {
- public:
-  explicit TempDir(const std::string& tag) {
-    static std::atomic<int> counter{0};
-    const auto stamp = std::chrono::steady_clock::now().time_since_epoch().count();
-    path_ = std::filesystem::temp_directory_path() /
-            ("orbitforge_" + tag + "_" + std::to_string(stamp) + "_" + std::to_string(counter++));
-    std::filesystem::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  const std::filesystem::path& path() const { return path_; }
-  std::string str(const std::string& child = "") const { return child.empty() ? path_.string() : (path_ / child).string(); }
-
- private:
-  std::filesystem::path path_;
-};
 
 // A per-process scratch folder <tmp>/orbitforge_test_<pid>/<tag>, the whole
 // tree removed when the test program exits.

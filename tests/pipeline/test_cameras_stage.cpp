@@ -127,18 +127,18 @@ TEST_CASE("cameras stage: a known focal length is held by a camera-only model; t
   CHECK_THROWS_WITH(focal_from_fov(180, 512), Catch::Contains("field of view"));
 
   TempDir t;
-  write_colmap_camera_only((t.root / "cam").string(), "SIMPLE_PINHOLE", 512, 384, 431.5);
-  const ColmapModel m = read_colmap_model((t.root / "cam").string());
+  write_colmap_camera_only((t.path() / "cam").string(), "SIMPLE_PINHOLE", 512, 384, 431.5);
+  const ColmapModel m = read_colmap_model((t.path() / "cam").string());
   REQUIRE(m.cameras.size() == 1);
   CHECK(m.cameras.begin()->first == 1);
   CHECK(m.cameras.begin()->second.params == std::vector<double>{431.5, 256, 192});
   CHECK(m.images.empty());
-  write_colmap_camera_only((t.root / "cam2").string(), "PINHOLE", 100, 100, 80);
-  CHECK(read_colmap_model((t.root / "cam2").string()).cameras.begin()->second.params ==
+  write_colmap_camera_only((t.path() / "cam2").string(), "PINHOLE", 100, 100, 80);
+  CHECK(read_colmap_model((t.path() / "cam2").string()).cameras.begin()->second.params ==
         std::vector<double>{80, 80, 50, 50});
-  CHECK_THROWS_WITH(write_colmap_camera_only((t.root / "c3").string(), "SIMPLE_RADIAL", 10, 10, 5),
+  CHECK_THROWS_WITH(write_colmap_camera_only((t.path() / "c3").string(), "SIMPLE_RADIAL", 10, 10, 5),
                     Catch::Contains("SIMPLE_RADIAL"));
-  CHECK_THROWS_WITH(write_colmap_camera_only((t.root / "c4").string(), "PINHOLE", 10, 10, -5),
+  CHECK_THROWS_WITH(write_colmap_camera_only((t.path() / "c4").string(), "PINHOLE", 10, 10, -5),
                     Catch::Contains("must be positive"));
 
   // The orbit score: an even arc scores lower than one whose steps are uneven,
@@ -169,18 +169,18 @@ TEST_CASE("cameras stage: a known focal length is held by a camera-only model; t
 
 TEST_CASE("cameras stage: a missing program is named with its Debian package before any work", "[pipeline][cameras]") {
   TempDir t;
-  const fs::path empty = t.root / "empty_bin";
+  const fs::path empty = t.path() / "empty_bin";
   fs::create_directories(empty);
   CHECK(find_program("ffmpeg", empty.string()).empty());
   CHECK(find_program("sh", "/nonexistent:" + empty.string() + ":/bin:/usr/bin") != "");
   CHECK(missing_program_message("full_pipeline", "--video", "ffmpeg", "ffmpeg") ==
         "full_pipeline: --video needs the ffmpeg program (Debian package ffmpeg): not found on PATH");
 
-  std::ofstream(t.root / "clip.mp4") << "not really a video";
+  std::ofstream(t.path() / "clip.mp4") << "not really a video";
   CameraStageParams p;
-  p.video = (t.root / "clip.mp4").string();
+  p.video = (t.path() / "clip.mp4").string();
   p.log = [](const std::string&) {};
-  const fs::path out = t.root / "out";
+  const fs::path out = t.path() / "out";
   {
     PathOverride path(empty.string());
     CHECK_THROWS_WITH(require_program("x", "--images", "colmap", "colmap"),
@@ -193,17 +193,17 @@ TEST_CASE("cameras stage: a missing program is named with its Debian package bef
 
 TEST_CASE("external tools: arguments, environment and failures with their log", "[pipeline][cameras]") {
   TempDir t;
-  const std::string log = (t.root / "logs" / "printf.log").string();
+  const std::string log = (t.path() / "logs" / "printf.log").string();
   run_tool({"printf", {"printf", "[%s]\\n", "a b", "c'd", "$HOME", "*"}, {}}, log);
   const std::string text = text_of(log);
   CHECK(text.rfind("$ printf ", 0) == 0);                       // the command line first
   CHECK(text.find("[a b]\n[c'd]\n[$HOME]\n[*]\n") != std::string::npos);  // no shell touched them
 
-  const std::string env_log = (t.root / "env.log").string();
+  const std::string env_log = (t.path() / "env.log").string();
   run_tool({"sh", {"sh", "-c", "echo platform=$QT_QPA_PLATFORM"}, {{"QT_QPA_PLATFORM", "offscreen"}}}, env_log);
   CHECK(text_of(env_log).find("platform=offscreen") != std::string::npos);
 
-  const std::string fail_log = (t.root / "fail.log").string();
+  const std::string fail_log = (t.path() / "fail.log").string();
   try {
     run_tool({"colmap mapper", {"sh", "-c", "echo 'no good initial pair' >&2; exit 3"}, {}}, fail_log);
     FAIL("expected a failure");
@@ -213,14 +213,14 @@ TEST_CASE("external tools: arguments, environment and failures with their log", 
     CHECK(m.find(fail_log) != std::string::npos);
     CHECK(m.find("no good initial pair") != std::string::npos);
   }
-  CHECK_THROWS_WITH(run_tool({"tool", {"orbitforge-no-such-program"}, {}}, (t.root / "x.log").string()),
+  CHECK_THROWS_WITH(run_tool({"tool", {"orbitforge-no-such-program"}, {}}, (t.path() / "x.log").string()),
                     Catch::Contains("orbitforge-no-such-program is not found on PATH"));
 }
 
 TEST_CASE("cameras stage: only the source frames reach COLMAP's folder; the largest model wins",
           "[pipeline][cameras]") {
   TempDir t;
-  const fs::path frames = t.root / "frames";
+  const fs::path frames = t.path() / "frames";
   fs::create_directories(frames);
   std::vector<std::string> names;
   for (int i = 1; i <= 12; ++i) {
@@ -229,12 +229,12 @@ TEST_CASE("cameras stage: only the source frames reach COLMAP's folder; the larg
     names.push_back(b);
     std::ofstream(frames / b) << "frame " << i;
   }
-  const fs::path seen = t.root / "colmap_images";
+  const fs::path seen = t.path() / "colmap_images";
   const auto linked = link_source_frames(frames.string(), names, "3-10", seen.string());
   CHECK(linked == std::vector<std::string>(names.begin() + 2, names.begin() + 10));
   CHECK(list_image_files(seen.string()) == linked);
   CHECK(text_of(seen / "00003.png") == "frame 3");
-  CHECK_THROWS_WITH(link_source_frames(frames.string(), names, "1-13", (t.root / "x").string()),
+  CHECK_THROWS_WITH(link_source_frames(frames.string(), names, "1-13", (t.path() / "x").string()),
                     Catch::Contains("only 12 frames"));
 
   // Two models as the mapper may write them: 1/ registers more images than 0/.
@@ -247,15 +247,15 @@ TEST_CASE("cameras stage: only the source frames reach COLMAP's folder; the larg
       fc.camera.t = Eigen::Vector3d(0.1 * i, 0, 4);
       cams.push_back(fc);
     }
-    write_colmap_text((t.root / "sparse" / dir).string(), cams);
+    write_colmap_text((t.path() / "sparse" / dir).string(), cams);
   };
   model("0", 2);
   model("1", 3);
   model("2", 3);
   std::size_t n = 0;
-  CHECK(fs::path(largest_colmap_model((t.root / "sparse").string(), &n)).filename() == "1");
+  CHECK(fs::path(largest_colmap_model((t.path() / "sparse").string(), &n)).filename() == "1");
   CHECK(n == 3);
-  CHECK(largest_colmap_model((t.root / "nothing").string()).empty());
+  CHECK(largest_colmap_model((t.path() / "nothing").string()).empty());
 }
 
 TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames only, resumable",
@@ -266,13 +266,13 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
   const auto t0 = std::chrono::steady_clock::now();
   TempDir t;
   // A 12-frame clip at 256 x 256 from recorded frames 1-12, as a user's mp4.
-  const std::string clip = (t.root / "clip.mp4").string();
+  const std::string clip = (t.path() / "clip.mp4").string();
   run_tool({"ffmpeg",
             {"ffmpeg", "-nostdin", "-y", "-framerate", "30", "-start_number", "1", "-i",
              orbitforge_test::shared_path(video_name) + "/%03d.jpg", "-frames:v", "12", "-vf", "scale=256:256",
              "-c:v", "libx264", "-crf", "12", "-pix_fmt", "yuv420p", clip},
             {}},
-           (t.root / "make_clip.log").string());
+           (t.path() / "make_clip.log").string());
 
   CameraStageParams p;
   p.video = clip;
@@ -280,7 +280,7 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
   p.threads = 2;
   std::vector<std::string> lines;
   p.log = [&](const std::string& s) { lines.push_back(s); };
-  const fs::path out = t.root / "out";
+  const fs::path out = t.path() / "out";
   const CameraStageResult r = stage_cameras(out.string(), p);
   CHECK(!r.skipped);
   CHECK(r.frames == 12);

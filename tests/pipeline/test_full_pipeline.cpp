@@ -86,7 +86,7 @@ PipelineParams oracle_params() {
 const fs::path& oracle_run() {
   static fs::path dir;
   if (dir.empty()) {
-    dir = scratch().root / "oracle";
+    dir = scratch().path() / "oracle";
     run_pipeline(tiny_input_data(), oracle_params(), dir.string());
   }
   return dir;
@@ -256,7 +256,7 @@ TEST_CASE("pipeline: no held-out frame reaches G1, the paper-data G1 or the boun
     fs::path dir = ref;
     PipelineParams p = oracle_params();
     if (std::string(provider) != "oracle") {
-      dir = scratch().root / (std::string("honest_") + provider);
+      dir = scratch().path() / (std::string("honest_") + provider);
       copy_run(ref, dir);
       p.completion = provider;
       p.iters_g1 = kQuick ? 20 : 60;
@@ -343,7 +343,7 @@ TEST_CASE("pipeline: a far, rescaled model trains as the normalised one, files i
   far.frame.origin = Eigen::Vector3d(1e5, -7e4, 5e4);
   far.frame.scale = 0.01;
   REQUIRE(far.frame.far_from_origin());
-  const fs::path near_dir = scratch().root / "frame_near", far_dir = scratch().root / "frame_far";
+  const fs::path near_dir = scratch().path() / "frame_near", far_dir = scratch().path() / "frame_far";
   const auto rn = run_pipeline(tiny_input_data(), p, near_dir.string());
   const auto rf = run_pipeline(far, p, far_dir.string());
 
@@ -423,7 +423,7 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   CHECK(r.at("coverage") == nlohmann::json::parse(before).at("coverage"));
 
   // A changed G1 setting re-runs G1 and the report only.
-  const fs::path copy = scratch().root / "resume_copy";
+  const fs::path copy = scratch().path() / "resume_copy";
   copy_run(dir, copy);
   PipelineParams p = tiny_params();
   p.iters_g1 = kQuick ? 20 : 40;
@@ -442,7 +442,7 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
 TEST_CASE("pipeline: an interrupted run resumes from its partial checkpoint and ends as an uninterrupted one",
           "[pipeline][resume]") {
   const fs::path& ref = oracle_run();
-  const fs::path dir = scratch().root / "interrupted";
+  const fs::path dir = scratch().path() / "interrupted";
   PipelineParams p = interrupt_g1(dir);
   CHECK(fs::exists(dir / "g1" / "partial.bin"));
   CHECK_FALSE(fs::exists(dir / "final.ply"));
@@ -469,7 +469,7 @@ TEST_CASE("pipeline: an interrupted run resumes from its partial checkpoint and 
 // the start: the result is the uninterrupted one.
 TEST_CASE("pipeline: a damaged partial checkpoint is not resumed", "[pipeline][resume]") {
   const fs::path& ref = oracle_run();
-  const fs::path dir = scratch().root / "damaged_partial";
+  const fs::path dir = scratch().path() / "damaged_partial";
   PipelineParams p = interrupt_g1(dir);
   const fs::path partial = dir / "g1" / "partial.bin";
   REQUIRE(fs::exists(partial));
@@ -495,7 +495,7 @@ TEST_CASE("pipeline: a damaged partial checkpoint is not resumed", "[pipeline][r
 }
 
 TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
-  const fs::path dir = scratch().root / "none";
+  const fs::path dir = scratch().path() / "none";
   copy_run(oracle_run(), dir);
   PipelineParams p = tiny_params();
   p.completion = "none";
@@ -512,7 +512,7 @@ TEST_CASE("pipeline: none provider reuses R0", "[pipeline][none]") {
 
 TEST_CASE("pipeline: view-fitted scores re-run the report only, and add rows beside the plain ones",
           "[pipeline][report]") {
-  const fs::path dir = scratch().root / "view_fitted";
+  const fs::path dir = scratch().path() / "view_fitted";
   copy_run(oracle_run(), dir);
   const auto plain = parse_file(dir / "report.json");
   PipelineParams p = oracle_params();
@@ -542,7 +542,7 @@ TEST_CASE("pipeline: view-fitted scores re-run the report only, and add rows bes
 }
 
 TEST_CASE("pipeline: the still check's figures and decision are in report.json", "[pipeline][levers]") {
-  const fs::path dir = scratch().root / "still_check";
+  const fs::path dir = scratch().path() / "still_check";
   PipelineParams p = tiny_params();
   p.completion = "none";
   p.static_proxy_diagnostics = false;
@@ -571,7 +571,7 @@ TEST_CASE("pipeline: the still check's figures and decision are in report.json",
 // the source frames (same focal), so the oracle's completion frames (recorded,
 // square) and R0's arc renders (wide) differ in shape inside V_hat and G1.
 TEST_CASE("pipeline: canonical views wider than a square source (oracle V_hat and G1, external anchors)", "[pipeline][protocol]") {
-  const fs::path dir = scratch().root / "wide";
+  const fs::path dir = scratch().path() / "wide";
   PipelineParams p = tiny_params();
   p.iters_g0 = p.iters_g1 = 60;
   p.init_points = 400;
@@ -623,7 +623,7 @@ TEST_CASE("pipeline: canonical views wider than a square source (oracle V_hat an
 
 TEST_CASE("pipeline: external provider writes the request, stops, and resumes with completed frames",
           "[pipeline][external]") {
-  const fs::path dir = scratch().root / "external";
+  const fs::path dir = scratch().path() / "external";
   copy_run(oracle_run(), dir);
   PipelineParams p = tiny_params();
   p.completion = "external";
@@ -696,7 +696,7 @@ TEST_CASE("pipeline: external provider writes the request, stops, and resumes wi
 TEMPLATE_TEST_CASE("pipeline: bad inputs give clear errors and leave earlier outputs intact", "[pipeline][errors]",
                    float, double) {
   using S = TestType;
-  const fs::path dir = scratch().root / (std::string("bad_") + (sizeof(S) == 4 ? "f" : "d"));
+  const fs::path dir = scratch().path() / (std::string("bad_") + (sizeof(S) == 4 ? "f" : "d"));
   fs::create_directories(dir);
   write_file_atomic((dir / "orbit.json").string(), "{\"earlier\": true}\n");
   PipelineParams p = tiny_params();

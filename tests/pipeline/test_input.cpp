@@ -198,14 +198,14 @@ TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses t
   if (!orbitforge_test::have_shared_data("v3d/cool_teddy")) return;
   orbitforge_test::TempDir tmp("input_test");
   const fs::path src = orbitforge_test::shared_path("v3d/cool_teddy");
-  fs::create_directories(tmp.root / "sparse" / "0");
-  fs::create_symlink(src / "images", tmp.root / "images");
-  fs::copy_file(src / "sparse" / "0" / "cameras.txt", tmp.root / "sparse" / "0" / "cameras.txt");
-  fs::copy_file(src / "sparse" / "0" / "points3D.txt", tmp.root / "sparse" / "0" / "points3D.txt");
+  fs::create_directories(tmp.path() / "sparse" / "0");
+  fs::create_symlink(src / "images", tmp.path() / "images");
+  fs::copy_file(src / "sparse" / "0" / "cameras.txt", tmp.path() / "sparse" / "0" / "cameras.txt");
+  fs::copy_file(src / "sparse" / "0" / "points3D.txt", tmp.path() / "sparse" / "0" / "points3D.txt");
   {
     // images.txt without 005.jpg, 006.jpg, 030.jpg (each an image line and its points line).
     std::ifstream in(src / "sparse" / "0" / "images.txt");
-    std::ofstream out(tmp.root / "sparse" / "0" / "images.txt");
+    std::ofstream out(tmp.path() / "sparse" / "0" / "images.txt");
     std::string line;
     bool skip_next = false;
     while (std::getline(in, line)) {
@@ -221,7 +221,7 @@ TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses t
       out << line << "\n";
     }
   }
-  const PipelineInput<S> in = load_colmap_input<S>(tmp.root.string(), "1-33", 64, 64);
+  const PipelineInput<S> in = load_colmap_input<S>(tmp.path().string(), "1-33", 64, 64);
   REQUIRE(in.cameras.size() == 90);
   REQUIRE(in.source.size() == 30);
   std::vector<std::string> names;
@@ -249,13 +249,13 @@ TEST_CASE("load_colmap_input: a recorded model without frames 5, 6 and 30 uses t
   p.progress = false;
   p.static_proxy_diagnostics = false;
   p.completion = "none";
-  run_pipeline(in, p, (tmp.root / "run").string());
-  const auto orbit = nlohmann::json::parse(read_file_bytes((tmp.root / "run" / "orbit.json").string()));
+  run_pipeline(in, p, (tmp.path() / "run").string());
+  const auto orbit = nlohmann::json::parse(read_file_bytes((tmp.path() / "run" / "orbit.json").string()));
   std::vector<std::string> fitted;
   for (const auto& s : orbit.at("source")) fitted.push_back(s.at("name").get<std::string>());
   CHECK(fitted == names);
   CHECK(orbit.at("source_frames").at("skipped").size() == 3);
-  const auto report = nlohmann::json::parse(read_file_bytes((tmp.root / "run" / "report.json").string()));
+  const auto report = nlohmann::json::parse(read_file_bytes((tmp.path() / "run" / "report.json").string()));
   CHECK(report.at("frames").at("trained").size() == 30);
   CHECK(report.at("points").at("kept") == sp.kept);
 }

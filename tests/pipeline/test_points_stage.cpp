@@ -44,7 +44,7 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
   REQUIRE(needs_triangulated_points(in));
 
   TempDir t;
-  const std::string out = t.root.string();
+  const std::string out = t.path().string();
   PointStageParams p;
   p.log = [](const std::string&) {};
   const PointStageResult r = stage_points(out, in, p);
@@ -57,7 +57,7 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
   REQUIRE(in.points.size() == 3 * r.points);
   REQUIRE(in.point_frames.size() == r.points);
   // Only the training frames reached COLMAP, and only they see a point.
-  CHECK(list_image_files((t.root / "points" / "images").string()).size() == 6);
+  CHECK(list_image_files((t.path() / "points" / "images").string()).size() == 6);
   for (const auto& seen : in.point_frames) {
     CHECK(seen.size() >= 2);
     for (int f : seen) {
@@ -96,12 +96,12 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
     seq.exhaustive_up_to = 4;
     const PointStageResult r2 = stage_points(out, again, seq);
     CHECK(r2.ran);  // the matcher is part of the key
-    CHECK(fs::exists(t.root / "points" / "logs" / "sequential_matcher.log"));
-    CHECK(!fs::exists(t.root / "points" / "logs" / "exhaustive_matcher.log"));
+    CHECK(fs::exists(t.path() / "points" / "logs" / "sequential_matcher.log"));
+    CHECK(!fs::exists(t.path() / "points" / "logs" / "exhaustive_matcher.log"));
     CHECK(r2.points >= 100);
   }
   SECTION("a damaged model or other training frames run COLMAP again") {
-    const fs::path points_file = t.root / "points" / "sparse" / "points3D.bin";
+    const fs::path points_file = t.path() / "points" / "sparse" / "points3D.bin";
     std::string bytes = read_file_bytes(points_file.string());
     bytes[bytes.size() / 2] = char(bytes[bytes.size() / 2] ^ 0x5a);
     write_file_atomic(points_file.string(), bytes);
@@ -145,13 +145,13 @@ TEST_CASE("points stage: frames with nothing in common give no points and leave 
   PointStageParams p;
   std::string said;
   p.log = [&said](const std::string& s) { said += s; };
-  const PointStageResult r = stage_points(t.root.string(), in, p);
+  const PointStageResult r = stage_points(t.path().string(), in, p);
   CHECK(r.ran);
   CHECK(r.points == 0);
   CHECK(in.points.empty());
   CHECK(r.key.empty());
   CHECK(said.find("COLMAP triangulated no points from the 2 training frames") != std::string::npos);
-  CHECK(!fs::exists(t.root / "stages" / "points.json"));
+  CHECK(!fs::exists(t.path() / "stages" / "points.json"));
 }
 
 TEST_CASE("points stage: fewer than two training frames is an error naming the problem", "[pipeline][points]") {
@@ -163,7 +163,7 @@ TEST_CASE("points stage: fewer than two training frames is an error naming the p
   in.images.push_back(Image<float>(100, 100, 3));
   in.source = {0};
   TempDir t;
-  CHECK_THROWS_WITH(stage_points(t.root.string(), in),
+  CHECK_THROWS_WITH(stage_points(t.path().string(), in),
                     "points stage: triangulation needs at least two training frames, the input has 1");
 }
 
