@@ -38,6 +38,12 @@ struct CameraStageParams {
   // A generated orbit turns a few degrees per frame, so the default 16 degrees
   // for the initial pair rejects every nearby pair; v3d's cameras were made with 4.
   double init_min_tri_angle_deg = 4;
+  // SIFT's difference-of-Gaussians threshold (COLMAP's default 0.0067; 0 keeps
+  // it). Smooth generated frames give few features at the default (sunflower
+  // about 230 a frame), and with few features the mapper's focal length and arc
+  // come out short; 0.004 brought all five recorded videos within 2 degrees of
+  // arc and 5 % of focal length (docs/cameras.md).
+  double sift_peak_threshold = 0.004;
   int threads = 0;  // COLMAP's threads (0 = all)
   // The lens, when the user knows it (pixels of the frames' own size, or the
   // horizontal field of view): held fixed while mapping. 0 = unknown.
@@ -111,6 +117,10 @@ inline ToolCommand colmap_feature_extractor_command(const std::string& database,
                  "--ImageReader.single_camera", "1", "--ImageReader.camera_model", p.camera_model,
                  "--SiftExtraction.use_gpu", "0", "--log_to_stderr", "1"},
                 cameras_detail::colmap_env()};
+  if (p.sift_peak_threshold > 0) {
+    c.argv.push_back("--SiftExtraction.peak_threshold");
+    c.argv.push_back(cameras_detail::number_text(p.sift_peak_threshold));
+  }
   if (p.threads > 0) {
     c.argv.push_back("--SiftExtraction.num_threads");
     c.argv.push_back(std::to_string(p.threads));

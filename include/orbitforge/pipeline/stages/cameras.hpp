@@ -115,6 +115,7 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
                              {"camera_model", p.camera_model},
                              {"sequential_overlap", p.sequential_overlap},
                              {"init_min_tri_angle_deg", p.init_min_tri_angle_deg},
+                             {"sift_peak_threshold", p.sift_peak_threshold},
                              {"focal_given_px", p.focal_px},
                              {"fov_given_deg", p.fov_deg},
                              {"focal_factors", p.focal_factors},

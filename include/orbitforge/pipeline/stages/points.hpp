@@ -155,6 +155,8 @@ PointStageResult stage_points(const std::string& out, PipelineInput<Scalar>& in,
     const std::string threads = std::to_string(p.threads > 0 ? p.threads : -1);
     CameraStageParams colmap_settings;  // the cameras stage's extractor and sequential matcher
     colmap_settings.camera_model = "PINHOLE";
+    // COLMAP's own threshold: the photograph rings' figures were measured with it.
+    colmap_settings.sift_peak_threshold = 0;
     colmap_settings.threads = p.threads;
     for (const auto& [id, im] : known.images) {
       // One run per frame: the database numbers images and cameras in the order
