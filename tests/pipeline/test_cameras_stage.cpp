@@ -362,6 +362,9 @@ TEST_CASE("cameras stage: sunflower's source frames alone give the all-frame mod
   p.log = [](const std::string&) {};
   const CameraStageResult r = stage_cameras((t.path() / "out").string(), p);
   REQUIRE(r.registered_names.size() == 33);
+  const nlohmann::json estimate =
+      nlohmann::json::parse(text_of(t.path() / "out" / "cameras" / "estimate.json"));
+  CHECK(estimate.at("colmap").at("sift_peak_threshold") == p.sift_peak_threshold);
 
   const std::string user_model = (t.path() / "out" / "cameras" / "sparse" / "0").string();
   const std::string reference_model = orbitforge_test::shared_path(video + "/sparse/0");

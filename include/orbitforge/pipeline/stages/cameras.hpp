@@ -15,7 +15,8 @@
 //                                 as the mapper wrote it); in text when the orbit
 //                                 refinement changed it
 //   cameras/estimate.json         the focal length, how it was chosen, every
-//                                 candidate, and the orbit check and refinement
+//                                 candidate, the orbit check and refinement, and
+//                                 the COLMAP settings that shaped the model
 //   cameras/logs/*.log            each tool's command line and output
 //
 // Evidence: frames outside the source range (--frames) never reach COLMAP, as a
@@ -224,6 +225,11 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     for (const auto& f : model_files) fs::copy_file(fs::path(best) / f, model_dir / f, fs::copy_options::overwrite_existing);
   }
   choice.json["orbit_refinement"] = refined.json;
+  choice.json["colmap"] = {{"camera_model", p.camera_model},
+                           {"sift_peak_threshold", p.sift_peak_threshold},
+                           {"matcher", "sequential"},
+                           {"sequential_overlap", p.sequential_overlap},
+                           {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
   write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
   for (const auto& [id, im] : refined.model.images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
