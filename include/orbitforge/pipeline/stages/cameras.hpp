@@ -112,11 +112,14 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   const fs::path model_dir = stage_dir / "sparse" / "0";
 
   // The key: the input's bytes and the settings that shape the result.
+  // The COLMAP settings also go into estimate.json, for the report.
+  const nlohmann::json colmap_settings = {{"camera_model", p.camera_model},
+                                          {"sift_peak_threshold", p.sift_peak_threshold},
+                                          {"matcher", "sequential"},
+                                          {"sequential_overlap", p.sequential_overlap},
+                                          {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
   nlohmann::json settings = {{"frames", p.frames},
-                             {"camera_model", p.camera_model},
-                             {"sequential_overlap", p.sequential_overlap},
-                             {"init_min_tri_angle_deg", p.init_min_tri_angle_deg},
-                             {"sift_peak_threshold", p.sift_peak_threshold},
+                             {"colmap", colmap_settings},
                              {"focal_given_px", p.focal_px},
                              {"fov_given_deg", p.fov_deg},
                              {"focal_factors", p.focal_factors},
@@ -225,11 +228,7 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     for (const auto& f : model_files) fs::copy_file(fs::path(best) / f, model_dir / f, fs::copy_options::overwrite_existing);
   }
   choice.json["orbit_refinement"] = refined.json;
-  choice.json["colmap"] = {{"camera_model", p.camera_model},
-                           {"sift_peak_threshold", p.sift_peak_threshold},
-                           {"matcher", "sequential"},
-                           {"sequential_overlap", p.sequential_overlap},
-                           {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
+  choice.json["colmap"] = colmap_settings;
   write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
   for (const auto& [id, im] : refined.model.images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
