@@ -183,6 +183,12 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
       ->group(method);
   add_setting_flag(app, "--g1-random-init", p.g1_from_gmed0, false, "G1 from points / random, not from Gmed0")
       ->group(method);
+  add_setting_flag(app, "--g1-source-lens", p.g1_source_lens, true,
+                   "G1 gives the completion frames the source cameras' lens (the default)")
+      ->group(method);
+  add_setting_flag(app, "--g1-provider-lens", p.g1_source_lens, false,
+                   "G1 gives the completion frames the lens their provider gave them")
+      ->group(method);
   app.add_option("--g1-source-repeats", p.g1_source_repeats, "sampling weight of G1's source frames")
       ->transform(at_least(1))
       ->group(method);

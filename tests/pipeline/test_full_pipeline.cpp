@@ -747,3 +747,51 @@ TEMPLATE_TEST_CASE("pipeline: bad inputs give clear errors and leave earlier out
   }
   CHECK(read_file_bytes((dir / "orbit.json").string()) == "{\"earlier\": true}\n");
 }
+
+TEST_CASE("pipeline: G1 gives completion frames the source's lens unless told to keep the provider's",
+          "[pipeline][g1]") {
+  // A provider that knows its frames' cameras from another estimate (the oracle on
+  // the user's path) gives them another focal length than the source cameras'.
+  Intrinsics<double> source_k;
+  source_k.fx = 100, source_k.fy = 101, source_k.cx = 32, source_k.cy = 24, source_k.width = 64, source_k.height = 48;
+  PipelineRun<double> run;
+  run.fit.views = 5;
+  Camerad canonical;
+  canonical.intrinsics = source_k;
+  run.fit.cameras.assign(5, canonical);
+
+  Camerad given = canonical;
+  given.R = Eigen::AngleAxisd(0.3, Eigen::Vector3d(0, 1, 0)).toRotationMatrix();
+  given.t = Eigen::Vector3d(0.1, -0.2, 3);
+  given.intrinsics.fx = 110, given.intrinsics.fy = 111, given.intrinsics.cx = 62, given.intrinsics.cy = 50;
+  given.intrinsics.width = 128, given.intrinsics.height = 96;
+  auto vhat = [&] {
+    std::vector<VhatFrame<double>> v(2);
+    v[0].image = Image<double>(64, 48, 3);
+    v[0].camera = canonical;
+    v[0].from_r0 = true;
+    v[0].position = 1;
+    v[1].image = Image<double>(128, 96, 3);  // twice the source's size
+    v[1].camera = given;
+    v[1].position = 3;
+    return v;
+  };
+
+  REQUIRE(run.params.g1_source_lens);  // the default
+  const auto frames = g1_frames(run, vhat(), G1Data::paper);
+  REQUIRE(frames.size() == 2);
+  CHECK(frames[0].camera.intrinsics.fx == 100);  // R0's render keeps its canonical camera
+  const auto& k = frames[1].camera.intrinsics;
+  CHECK(k.fx == Approx(200));  // the source's lens at the frame's size
+  CHECK(k.fy == Approx(202));
+  CHECK(k.cx == Approx(64));
+  CHECK(k.cy == Approx(48));
+  CHECK(k.width == 128);
+  CHECK(frames[1].camera.R.isApprox(given.R));  // the pose is the provider's
+  CHECK(frames[1].camera.t.isApprox(given.t));
+
+  run.params.g1_source_lens = false;
+  const auto kept = g1_frames(run, vhat(), G1Data::paper);
+  CHECK(kept[1].camera.intrinsics.fx == 110);
+  CHECK(kept[1].camera.intrinsics.cx == 62);
+}

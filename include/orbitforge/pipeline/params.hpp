@@ -66,6 +66,13 @@ struct PipelineParams {
   bool g1_deformable = false;
   G1Data g1_data = G1Data::source;  // G1's training set (see G1Data)
   bool g1_arc_renders = false;      // with G1Data::source: add R0's arc renders too
+  // The lens G1 gives the completion frames (and the report their gap views):
+  // true, the source cameras' (a video model continues its source's lens, and
+  // the external provider's frames are requested at it); false, the one the
+  // provider gave with each frame. The oracle on the user's path gives the
+  // reference model's focal length, a few per cent off the source cameras':
+  // G1 then trains on two lenses (docs/cameras.md measures what that costs).
+  bool g1_source_lens = true;
   int g1_source_repeats = 1;        // sampling weights (TrainFrame::repeats) of source frames ...
   int g1_completion_repeats = 1;    // ... and of completion frames
   // Comparisons for audits (each one more reconstruction; not part of the method):

@@ -142,6 +142,17 @@ struct PipelineRun {
     return t;
   }
 
+  // The camera G1 gives a completion frame the provider placed at `cam`, its
+  // image width x height: with params.g1_source_lens the source cameras' lens
+  // (scaled to that size), as a video model continuing the source would film it;
+  // else `cam` as given. Gap views are scored at the same camera, so that the
+  // score measures the scene, not two estimates' focal lengths.
+  Camera<Scalar> completion_camera(Camera<Scalar> cam, int width, int height) const {
+    if (!params.g1_source_lens) return cam;
+    cam.intrinsics = fit.cameras.front().intrinsics.resized(width, height);
+    return cam;
+  }
+
   // Scene files (gmed0.ply, final.ply, ...) are in the input model's own frame,
   // while the run works in the input's (PipelineInput::frame, identity unless the
   // input was loaded normalised). The move is made in double; far from the

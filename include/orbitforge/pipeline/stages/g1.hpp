@@ -102,6 +102,7 @@ nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string
           {"data", data},
           {"source_repeats", p.g1_source_repeats},
           {"completion_repeats", p.g1_completion_repeats},
+          {"completion_lens", p.g1_source_lens ? "source" : "provider"},
           {"threads", p.threads}};
 }
 
@@ -117,7 +118,9 @@ std::vector<TrainFrame<Scalar>> g1_frames(const PipelineRun<Scalar>& run, std::v
   for (auto& v : vhat) {
     if (v.from_r0 && data == G1Data::source && !p.g1_arc_renders) continue;
     const int repeats = v.from_r0 ? 1 : p.g1_completion_repeats;
-    frames.push_back(g1_detail::orbit_frame(run, std::move(v.image), v.camera, v.position, v.origin, repeats));
+    const Camera<Scalar> cam =
+        v.from_r0 ? v.camera : run.completion_camera(v.camera, v.image.width, v.image.height);
+    frames.push_back(g1_detail::orbit_frame(run, std::move(v.image), cam, v.position, v.origin, repeats));
   }
   ensure(!frames.empty(), "pipeline: G1 has no training frames");
   return frames;
@@ -203,8 +206,9 @@ void stage_bound(PipelineRun<Scalar>& run) {
   std::vector<TrainFrame<Scalar>> frames;
   g1_detail::add_source_frames(run, frames, 1);
   for (int i : gap.completion) {
-    const auto& cam = in.cameras[std::size_t(i)].camera;
-    frames.push_back(g1_detail::orbit_frame(run, in.images[std::size_t(i)], cam, orbit_position(run.fit, cam),
+    const auto& img = in.images[std::size_t(i)];
+    const auto cam = run.completion_camera(in.cameras[std::size_t(i)].camera, img.width, img.height);
+    frames.push_back(g1_detail::orbit_frame(run, img, cam, orbit_position(run.fit, cam),
                                             "recorded " + in.cameras[std::size_t(i)].name, 1));
   }
   // With a perfect completion (the oracle) and G1 on source + completion, G1 has
