@@ -79,6 +79,11 @@ inline std::string report_markdown(const nlohmann::json& r) {
     }
     md << " |\n";
   }
+  if (at(r, "quality", "R1", "gap_heldout_at_reference_lens").is_object())
+    md << "\nGap views are scored at their recorded pose with the source cameras' lens, the camera G1 gives a "
+          "completion frame; at the reference's own lens (the two estimates' focal lengths disagree): R0 "
+       << num(at(at(r, "quality", "R0", "gap_heldout_at_reference_lens"), "psnr")) << " dB, R1 "
+       << num(at(at(r, "quality", "R1", "gap_heldout_at_reference_lens"), "psnr")) << " dB.\n";
   if (at(r, "quality", "R1", "gap_heldout_view_fitted").is_object()) {
     md << "\nWith each scored view's camera turned and zoomed about its centre to fit its image (the scene fixed; "
           "this separates the scene's error from the scoring cameras' own):\n\n"
