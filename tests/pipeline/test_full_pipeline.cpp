@@ -754,6 +754,7 @@ TEST_CASE("pipeline: G1 gives completion frames the source's lens unless told to
   // the user's path) gives them another focal length than the source cameras'.
   Intrinsics<double> source_k;
   source_k.fx = 100, source_k.fy = 101, source_k.cx = 32, source_k.cy = 24, source_k.width = 64, source_k.height = 48;
+  // (the canonical cameras carry the source cameras' median focal lengths: orbit.hpp)
   PipelineRun<double> run;
   run.fit.views = 5;
   Camerad canonical;
@@ -784,14 +785,14 @@ TEST_CASE("pipeline: G1 gives completion frames the source's lens unless told to
   const auto& k = frames[1].camera.intrinsics;
   CHECK(k.fx == Approx(200));  // the source's lens at the frame's size
   CHECK(k.fy == Approx(202));
-  CHECK(k.cx == Approx(64));
-  CHECK(k.cy == Approx(48));
+  CHECK(k.cx == 62);  // the principal point, like the pose, is the provider's
+  CHECK(k.cy == 50);
   CHECK(k.width == 128);
-  CHECK(frames[1].camera.R.isApprox(given.R));  // the pose is the provider's
+  CHECK(frames[1].camera.R.isApprox(given.R));
   CHECK(frames[1].camera.t.isApprox(given.t));
 
   run.params.g1_source_lens = false;
   const auto kept = g1_frames(run, vhat(), G1Data::paper);
   CHECK(kept[1].camera.intrinsics.fx == 110);
-  CHECK(kept[1].camera.intrinsics.cx == 62);
+  CHECK(kept[1].camera.intrinsics.fy == 111);
 }

@@ -143,13 +143,16 @@ struct PipelineRun {
   }
 
   // The camera G1 gives a completion frame the provider placed at `cam`, its
-  // image width x height: with params.g1_source_lens the source cameras' lens
-  // (scaled to that size), as a video model continuing the source would film it;
-  // else `cam` as given. Gap views are scored at the same camera, so that the
-  // score measures the scene, not two estimates' focal lengths.
+  // image width x height: with params.g1_source_lens the source cameras' focal
+  // lengths (their median, the canonical cameras', scaled to that size), as a
+  // video model continuing the source would film it, and the provider's pose and
+  // principal point; else `cam` as given. Gap views are scored at the same
+  // camera, so that the score measures the scene, not two estimates' focal lengths.
   Camera<Scalar> completion_camera(Camera<Scalar> cam, int width, int height) const {
     if (!params.g1_source_lens) return cam;
-    cam.intrinsics = fit.cameras.front().intrinsics.resized(width, height);
+    const Intrinsics<Scalar> k = fit.cameras.front().intrinsics.resized(width, height);
+    cam.intrinsics.fx = k.fx;
+    cam.intrinsics.fy = k.fy;
     return cam;
   }
 
