@@ -51,7 +51,7 @@ struct PipelineFlags {
 
 inline const char* kInputGroup = "Input";
 inline const char* kTrainingGroup = "Training";
-inline const char* kSkipGroup = "Work a scene does not need (off by default; each reconstruction)";
+inline const char* kSkipGroup = "Work a scene does not need (each reconstruction; full_pipeline and audit check for a still scene by default, the rest is off)";
 
 // The flags of one reconstruction, which reconstruct and the pipeline share. Each
 // option's default is the value `f` holds when it is added (a program sets its

@@ -89,6 +89,9 @@ struct Args {
   Args() {
     shared.frames = "1-";            // every frame
     shared.params.iters_g0 = 30000;  // reconstruct's own default (the pipeline's is 3000)
+    // One reconstruction trains as asked, as TrainParams does; the method's
+    // still check (PipelineParams) is a flag away.
+    shared.params.train.still_check_iterations = TrainParams{}.still_check_iterations;
   }
 };
 

@@ -89,6 +89,9 @@ TEST_CASE("protocol paper: every setting as published", "[pipeline][protocol]") 
   // smooth_term linear from 0.1 to ~0 over 20,000 steps.
   CHECK(t.time_noise == 0.1);
   CHECK(t.time_noise_steps == 20000);
+  // [paper App. "Gaussian Splatting Reconstruction Settings"]: every reconstruction
+  // deformable for its whole budget: no still-scene check.
+  CHECK(t.still_check_iterations == 0);
   CHECK(protocol_loads_native_size(Protocol::paper));
 }
 
@@ -99,6 +102,11 @@ TEST_CASE("protocol measured: the defaults, untouched", "[pipeline][protocol]") 
   CHECK(b.iters_g0 == 123);
   CHECK(b.orbit.center == a.orbit.center);
   CHECK(b.train.field.depth == a.train.field.depth);
+  // The method's defaults check for a still scene (docs/benchmarks.md); a bare
+  // TrainParams, the library's single reconstruction, does not.
+  CHECK(a.train.still_check_iterations == 500);
+  CHECK(b.train.still_check_iterations == 500);
+  CHECK(TrainParams{}.still_check_iterations == 0);
   CHECK_FALSE(protocol_loads_native_size(Protocol::measured));
   CHECK(parse_protocol("paper") == Protocol::paper);
   CHECK_THROWS_WITH(parse_protocol("papers"), Catch::Contains("expected paper or measured"));
