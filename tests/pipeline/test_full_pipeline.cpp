@@ -238,6 +238,23 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
   CHECK(held <= 29);
   CHECK(r["quality"]["R0"]["supported_train"]["views"].get<int>() == 29);  // 33 minus frames 8, 16, 24, 32
   CHECK(r["quality"]["R0"]["supported_heldout"]["views"].get<int>() == 4);
+  // Each row lists its views: one entry per scored view, distinct frames, and the
+  // row's PSNR is their mean.
+  for (const char* k : {"R0", "R1"})
+    for (const char* s : {"supported_train", "supported_heldout", "gap_heldout"}) {
+      INFO(k << " " << s);
+      const nlohmann::json& row = r["quality"][k][s];
+      const nlohmann::json& views = row.at("per_view");
+      REQUIRE(views.size() == row["views"].get<std::size_t>());
+      std::set<std::string> names;
+      double sum = 0;
+      for (const auto& v : views) {
+        names.insert(v.at("frame").get<std::string>());
+        sum += v.at("psnr").get<double>();
+      }
+      CHECK(names.size() == views.size());
+      CHECK(sum / double(views.size()) == Approx(row["psnr"].get<double>()).epsilon(1e-12));
+    }
   if (!kQuick) {
     const double g0 = r["quality"]["R0"]["gap_heldout"]["psnr"].get<double>();
     const double g1 = r["quality"]["R1"]["gap_heldout"]["psnr"].get<double>();

@@ -71,7 +71,14 @@ nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Sc
     q.push_back(compare_images(rendered, image, fc.name, run.params.threads));
   }
   const QualityMean m = mean_quality(q);
-  j = {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}};
+  // Each view's figures too, in `frames`' order: a mean hides where along the
+  // orbit a reconstruction fails (near the arc's ends, or across the gap).
+  nlohmann::json per_view = nlohmann::json::array();
+  for (std::size_t k = 0; k < q.size(); ++k)
+    per_view.push_back({{"frame", run.input->cameras[std::size_t(frames[k])].name},
+                        {"psnr", q[k].psnr},
+                        {"ssim", q[k].ssim}});
+  j = {{"psnr", m.psnr}, {"ssim", m.ssim}, {"views", m.views}, {"per_view", per_view}};
   if (fit_view) {
     const ViewAlignmentParams limits;
     j["view_fit"] = {{"fitted_views", fitted},
@@ -104,7 +111,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   std::uint64_t h = fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1")));
   for (const char* extra : {"g1_paper", "bound"})
     if (run.keys.count(extra)) h = fnv1a(run.keys.at(extra), h);
-  const std::string key = hex64(fnv1a(p.score_view_fitted ? "report v6 view-fitted" : "report v6", h));
+  const std::string key = hex64(fnv1a(p.score_view_fitted ? "report v7 view-fitted" : "report v7", h));
   run.keys["report"] = key;
   const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
                                             "top_view.png"};
