@@ -79,9 +79,11 @@ void check_inputs(const Inputs& in, const cli::PipelineFlags& flags, bool frames
   usage(!in.camera_model_set || in.estimate_cameras(), "--camera-model goes with --video or --images alone (COLMAP)");
   usage(in.reference.empty() || in.estimate_cameras(),
         "--reference goes with --video or --images alone (cameras estimated from the source frames)");
-  usage((flags.focal_px == 0 && flags.fov_deg == 0 && !flags.focal_search && flags.orbit_refine == "flagged") ||
+  usage((flags.focal_px == 0 && flags.fov_deg == 0 && !flags.focal_search && flags.orbit_refine == "flagged" &&
+         flags.sift_peak_threshold == 0) ||
             in.estimate_cameras(),
-        "--focal, --fov, --focal-search and --orbit-refine go with --video or --images alone (COLMAP)");
+        "--focal, --fov, --focal-search, --orbit-refine and --sift-peak-threshold go with --video or --images alone "
+        "(COLMAP)");
   usage(in.camera_model == "SIMPLE_PINHOLE" || in.camera_model == "PINHOLE",
         "--camera-model must be SIMPLE_PINHOLE or PINHOLE, got '" + in.camera_model + "'");
   usage(flags.image_order == ImageOrder::name || !in.colmap.empty(),

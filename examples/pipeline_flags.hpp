@@ -44,6 +44,7 @@ struct PipelineFlags {
   double focal_px = 0, fov_deg = 0;
   bool focal_search = false;
   std::string orbit_refine = "flagged";
+  double sift_peak_threshold = 0;  // 0: COLMAP's, again at 0.004 when features are few
   // A COLMAP model without 3D points: COLMAP triangulates the training frames at
   // their cameras (stages/points.hpp), else training starts from a random cloud.
   bool triangulate = true;
@@ -243,6 +244,12 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
       ->check(CLI::IsMember({"flagged", "always", "off"}))
       ->capture_default_str()
       ->group(cameras);
+  unset_when_zero(app.add_option("--sift-peak-threshold", f.sift_peak_threshold,
+                                 "SIFT's threshold, held (default: COLMAP's 0.0067, and 0.004 when that gives "
+                                 "under 300 features per frame)"),
+                  f.sift_peak_threshold)
+      ->check(positive())
+      ->group(cameras);
 }
 
 // Parses argv with the options `define(f)` returns an App for. The protocol sets
@@ -358,6 +365,7 @@ inline CameraStageParams camera_stage_params(const PipelineFlags& f) {
   cp.fov_deg = f.fov_deg;
   if (f.focal_search) cp.focal_factors = kFocalSearchFactors;
   cp.orbit_refine = parse_orbit_refine(f.orbit_refine);
+  cp.sift_peak_threshold = f.sift_peak_threshold;
   return cp;
 }
 

@@ -100,11 +100,12 @@ TEST_CASE("cameras stage: ffmpeg and colmap commands are argument vectors", "[pi
   CHECK(after(fe.argv, "--ImageReader.camera_model") == "SIMPLE_PINHOLE");
   CHECK(after(fe.argv, "--SiftExtraction.use_gpu") == "0");
   CHECK(after(fe.argv, "--SiftExtraction.num_threads") == "2");
-  CHECK(after(fe.argv, "--SiftExtraction.peak_threshold") == "0.004");
-  CameraStageParams colmap_default = p;
-  colmap_default.sift_peak_threshold = 0;
-  CHECK(!contains(colmap_feature_extractor_command("/o/db.db", "/o/images", colmap_default).argv,
-                  "--SiftExtraction.peak_threshold"));
+  // COLMAP's own threshold by default; a given one is passed on.
+  CHECK(!contains(fe.argv, "--SiftExtraction.peak_threshold"));
+  CameraStageParams held = p;
+  held.sift_peak_threshold = 0.004;
+  CHECK(after(colmap_feature_extractor_command("/o/db.db", "/o/images", held).argv,
+              "--SiftExtraction.peak_threshold") == "0.004");
   REQUIRE(fe.env.size() == 1);
   CHECK(fe.env[0].first == "QT_QPA_PLATFORM");
   CHECK(fe.env[0].second == "offscreen");
@@ -346,9 +347,24 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
                                     << " s, " << r.registered_names.size() << " of 10 registered");
 }
 
+TEST_CASE("cameras stage: feature counts from feature_extractor's log", "[pipeline][cameras]") {
+  const std::string log =
+      "colmap feature_extractor --database_path db\n"
+      "Processed file [1/3]\n  Name:            001.jpg\n  Dimensions:      512 x 512\n  Features:        938\n"
+      "Processed file [2/3]\n  Name:            002.jpg\n  Features:        12\n"
+      "Processed file [3/3]\n  Name:            003.jpg\n  Features:        450\n"
+      "Elapsed time: 0.1 [minutes]\n";
+  CHECK(sift_feature_counts(log) == std::vector<int>{938, 12, 450});
+  CHECK(median_count({938, 12, 450}) == 450);
+  CHECK(median_count({4, 1, 3, 2}) == 2);  // the lower middle
+  CHECK(median_count({}) == 0);
+  CHECK(sift_feature_counts("no counts here\nFeatures: none\n").empty());
+}
+
 // Sunflower gives the fewest SIFT features of the five recorded videos (about
-// 230 a frame at COLMAP's default threshold), and at that threshold its 33
-// frames under-rotated by 4-5 degrees with the focal length 3-4 % short.
+// 220 a frame at COLMAP's default threshold), and at that threshold its 33
+// frames under-rotated by 4-5 degrees with the focal length 3-4 % short: the
+// stage extracts them again at the lower threshold.
 TEST_CASE("cameras stage: sunflower's source frames alone give the all-frame model's arc and focal length",
           "[pipeline][cameras][data]") {
   const std::string video = "v3d/sunflower";
@@ -365,6 +381,10 @@ TEST_CASE("cameras stage: sunflower's source frames alone give the all-frame mod
   const nlohmann::json estimate =
       nlohmann::json::parse(text_of(t.path() / "out" / "cameras" / "estimate.json"));
   CHECK(estimate.at("colmap").at("sift_peak_threshold") == p.sift_peak_threshold);
+  // Its frames give few features at COLMAP's threshold, so they were extracted again.
+  const nlohmann::json& features = estimate.at("colmap").at("features");
+  CHECK(features.at("median_per_frame_at_colmap_default").get<int>() < p.sift_few_features);
+  CHECK(features.at("threshold").get<double>() == p.sift_retry_threshold);
 
   const std::string user_model = (t.path() / "out" / "cameras" / "sparse" / "0").string();
   const std::string reference_model = orbitforge_test::shared_path(video + "/sparse/0");

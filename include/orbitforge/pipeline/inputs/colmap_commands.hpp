@@ -8,7 +8,9 @@
 // holds only the camera (cameras.txt with the focal, no images, no points) and
 // turning off its focal refinement: the database keeps the extractor's camera,
 // so one feature and match database serves every focal length tried.
+#include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -38,12 +40,17 @@ struct CameraStageParams {
   // A generated orbit turns a few degrees per frame, so the default 16 degrees
   // for the initial pair rejects every nearby pair; v3d's cameras were made with 4.
   double init_min_tri_angle_deg = 4;
-  // SIFT's difference-of-Gaussians threshold (COLMAP's default 0.0067; 0 keeps
-  // it). Smooth generated frames give few features at the default (sunflower
-  // about 230 a frame), and with few features the mapper's focal length and arc
-  // come out short; 0.004 brought all five recorded videos within 2 degrees of
-  // arc and 5 % of focal length (docs/cameras.md).
-  double sift_peak_threshold = 0.004;
+  // SIFT's difference-of-Gaussians threshold; 0 = COLMAP's default (0.0067), and
+  // then, when the source frames give few features at it (a median under
+  // sift_few_features a frame), the features are extracted again at
+  // sift_retry_threshold. With few features the mapper's focal length and arc
+  // come out short (sunflower: 217 a frame, 4 % and 5 degrees short; 0.004
+  // fixes both); with enough, COLMAP's threshold gave the focal length closer
+  // to the all-frame model's than 0.004 did (corgi_bread, 387 a frame: -0.2 to
+  // -1.1 % against -1.8 to -2.1 %). docs/cameras.md.
+  double sift_peak_threshold = 0;
+  double sift_retry_threshold = 0.004;  // 0 = never extract again
+  int sift_few_features = 300;
   int threads = 0;  // COLMAP's threads (0 = all)
   // The lens, when the user knows it (pixels of the frames' own size, or the
   // horizontal field of view): held fixed while mapping. 0 = unknown.
@@ -75,6 +82,30 @@ inline std::vector<std::pair<std::string, std::string>> camera_stage_programs(co
   if (!p.video.empty()) v.push_back({"ffmpeg", "ffmpeg"});
   v.push_back({"colmap", "colmap"});
   return v;
+}
+
+// The per-image feature counts feature_extractor printed ("Features: N" lines
+// of its log, in the order it read the images).
+inline std::vector<int> sift_feature_counts(const std::string& log_text) {
+  std::vector<int> counts;
+  std::istringstream in(log_text);
+  std::string line;
+  while (std::getline(in, line)) {
+    const std::size_t at = line.find("Features:");
+    if (at == std::string::npos) continue;
+    std::istringstream rest(line.substr(at + 9));
+    long n = -1;
+    if (rest >> n && n >= 0) counts.push_back(int(n));
+  }
+  return counts;
+}
+
+// The median of the counts (the lower middle one for an even count; 0 when empty).
+inline int median_count(std::vector<int> counts) {
+  if (counts.empty()) return 0;
+  const std::size_t mid = (counts.size() - 1) / 2;
+  std::nth_element(counts.begin(), counts.begin() + std::ptrdiff_t(mid), counts.end());
+  return counts[mid];
 }
 
 namespace cameras_detail {

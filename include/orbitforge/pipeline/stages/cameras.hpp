@@ -115,6 +115,8 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   // The COLMAP settings also go into estimate.json, for the report.
   const nlohmann::json colmap_settings = {{"camera_model", p.camera_model},
                                           {"sift_peak_threshold", p.sift_peak_threshold},
+                                          {"sift_retry_threshold", p.sift_retry_threshold},
+                                          {"sift_few_features", p.sift_few_features},
                                           {"matcher", "sequential"},
                                           {"sequential_overlap", p.sequential_overlap},
                                           {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
@@ -209,7 +211,28 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     log(b);
     return t.seconds;
   };
+  // Features at the given threshold, or at COLMAP's and again at the retry
+  // threshold when they are few (CameraStageParams::sift_peak_threshold).
   timed(colmap_feature_extractor_command(database.string(), colmap_images.string(), p), "feature_extractor.log");
+  nlohmann::json features = {{"threshold", p.sift_peak_threshold}};
+  if (p.sift_peak_threshold == 0 && p.sift_retry_threshold > 0) {
+    const std::vector<int> counts = sift_feature_counts(read_file_bytes((logs / "feature_extractor.log").string()));
+    ensure(counts.size() == r.source_names.size(), "colmap feature_extractor: its log lists ", counts.size(),
+           " feature counts for ", r.source_names.size(), " source frames (see ", (logs / "feature_extractor.log").string(),
+           "); pass a SIFT threshold to skip the count");
+    const int median = median_count(counts);
+    features["median_per_frame_at_colmap_default"] = median;
+    if (median < p.sift_few_features) {
+      log("   cameras: " + std::to_string(median) + " SIFT features per frame (median) at COLMAP's threshold, under " +
+          std::to_string(p.sift_few_features) + ": extracting again at " + number_text(p.sift_retry_threshold));
+      for (const char* suffix : {"", "-journal", "-wal", "-shm"}) fs::remove(database.string() + suffix);
+      CameraStageParams retry = p;
+      retry.sift_peak_threshold = p.sift_retry_threshold;
+      timed(colmap_feature_extractor_command(database.string(), colmap_images.string(), retry),
+            "feature_extractor_retry.log");
+      features["threshold"] = p.sift_retry_threshold;
+    }
+  }
   timed(colmap_sequential_matcher_command(database.string(), p), "sequential_matcher.log");
   FocalChoice choice = map_source_frames(colmap_dir.string(), colmap_images.string(), r.source_names, p, timed);
   const std::string best = choice.model_dir;
@@ -229,6 +252,7 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   }
   choice.json["orbit_refinement"] = refined.json;
   choice.json["colmap"] = colmap_settings;
+  choice.json["colmap"]["features"] = features;
   write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
   for (const auto& [id, im] : refined.model.images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
