@@ -44,10 +44,10 @@ struct CameraStageParams {
   // then, when the source frames give few features at it (a median under
   // sift_few_features a frame), the features are extracted again at
   // sift_retry_threshold. With few features the mapper's focal length and arc
-  // come out short (sunflower: 217 a frame, 4 % and 5 degrees short; 0.004
+  // come out short (sunflower: 218 a frame, 4 % and 5 degrees short; 0.004
   // fixes both); with enough, COLMAP's threshold gave the focal length closer
   // to the all-frame model's than 0.004 did (corgi_bread, 387 a frame: -0.2 to
-  // -1.1 % against -1.8 to -2.1 %). docs/cameras.md.
+  // -1.4 % against -1.6 to -2.1 %). docs/cameras.md.
   double sift_peak_threshold = 0;
   double sift_retry_threshold = 0.004;  // 0 = never extract again
   int sift_few_features = 300;
