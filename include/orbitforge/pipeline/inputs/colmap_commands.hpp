@@ -8,7 +8,6 @@
 // holds only the camera (cameras.txt with the focal, no images, no points) and
 // turning off its focal refinement: the database keeps the extractor's camera,
 // so one feature and match database serves every focal length tried.
-#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -98,14 +97,6 @@ inline std::vector<int> sift_feature_counts(const std::string& log_text) {
     if (rest >> n && n >= 0) counts.push_back(int(n));
   }
   return counts;
-}
-
-// The median of the counts (the lower middle one for an even count; 0 when empty).
-inline int median_count(std::vector<int> counts) {
-  if (counts.empty()) return 0;
-  const std::size_t mid = (counts.size() - 1) / 2;
-  std::nth_element(counts.begin(), counts.begin() + std::ptrdiff_t(mid), counts.end());
-  return counts[mid];
 }
 
 namespace cameras_detail {

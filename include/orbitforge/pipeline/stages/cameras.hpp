@@ -44,6 +44,7 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/frames.hpp"
 #include "orbitforge/io/image_folder.hpp"
+#include "orbitforge/metrics/image.hpp"
 #include "orbitforge/pipeline/inputs/colmap_commands.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "orbitforge/pipeline/inputs/focal_search.hpp"
@@ -220,10 +221,10 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     ensure(counts.size() == r.source_names.size(), "colmap feature_extractor: its log lists ", counts.size(),
            " feature counts for ", r.source_names.size(), " source frames (see ", (logs / "feature_extractor.log").string(),
            "); pass a SIFT threshold to skip the count");
-    const int median = median_count(counts);
+    const double median = percentile(std::vector<double>(counts.begin(), counts.end()), 50);
     features["median_per_frame_at_colmap_default"] = median;
     if (median < p.sift_few_features) {
-      log("   cameras: " + std::to_string(median) + " SIFT features per frame (median) at COLMAP's threshold, under " +
+      log("   cameras: " + number_text(median) + " SIFT features per frame (median) at COLMAP's threshold, under " +
           std::to_string(p.sift_few_features) + ": extracting again at " + number_text(p.sift_retry_threshold));
       for (const char* suffix : {"", "-journal", "-wal", "-shm"}) fs::remove(database.string() + suffix);
       CameraStageParams retry = p;
