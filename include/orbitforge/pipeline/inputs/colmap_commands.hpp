@@ -1,6 +1,6 @@
 #pragma once
 // The settings of the cameras stage and the command lines of the programs it
-// runs (ffmpeg, COLMAP's feature_extractor, sequential_matcher and mapper),
+// runs (ffmpeg, COLMAP's feature_extractor, sequential_matcher or matches_importer, and mapper),
 // built as argument vectors (pipeline/inputs/external_tools.hpp runs them), and the
 // COLMAP model files the stage writes or picks.
 //
@@ -150,16 +150,34 @@ inline ToolCommand colmap_feature_extractor_command(const std::string& database,
   return c;
 }
 
-inline ToolCommand colmap_sequential_matcher_command(const std::string& database, const CameraStageParams& p) {
-  ToolCommand c{"colmap sequential_matcher",
-                {"colmap", "sequential_matcher", "--database_path", database, "--SiftMatching.use_gpu", "0",
-                 "--SequentialMatching.overlap", std::to_string(p.sequential_overlap), "--log_to_stderr", "1"},
-                cameras_detail::colmap_env()};
+namespace cameras_detail {
+
+inline ToolCommand colmap_matcher_command(const std::string& matcher, const std::string& database,
+                                          const std::vector<std::string>& options, const CameraStageParams& p) {
+  ToolCommand c{"colmap " + matcher,
+                {"colmap", matcher, "--database_path", database, "--SiftMatching.use_gpu", "0", "--log_to_stderr", "1"},
+                colmap_env()};
+  c.argv.insert(c.argv.end(), options.begin(), options.end());
   if (p.threads > 0) {
     c.argv.push_back("--SiftMatching.num_threads");
     c.argv.push_back(std::to_string(p.threads));
   }
   return c;
+}
+
+}  // namespace cameras_detail
+
+inline ToolCommand colmap_sequential_matcher_command(const std::string& database, const CameraStageParams& p) {
+  return cameras_detail::colmap_matcher_command(
+      "sequential_matcher", database, {"--SequentialMatching.overlap", std::to_string(p.sequential_overlap)}, p);
+}
+
+// The image pairs listed in `pairs_file` (two image names a line): the
+// recalibrate stage's neighbours along a closed orbit.
+inline ToolCommand colmap_pairs_matcher_command(const std::string& database, const std::string& pairs_file,
+                                                const CameraStageParams& p) {
+  return cameras_detail::colmap_matcher_command("matches_importer", database,
+                                                {"--match_list_path", pairs_file, "--match_type", "pairs"}, p);
 }
 
 inline ToolCommand colmap_mapper_command(const std::string& database, const std::string& image_dir,

@@ -1,0 +1,92 @@
+// G1's cameras estimated again once the orbit is whole
+// (pipeline/inputs/recalibration.hpp): with a recorded video's source frames at
+// a focal length 4 % off and the frames of its unseen side, COLMAP closes the
+// loop, the focal length comes back near the all-frame model's, and the new
+// cameras land on the first ones' gauge.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "orbitforge/pipeline/inputs/colmap_input.hpp"
+#include "orbitforge/pipeline/inputs/external_tools.hpp"
+#include "orbitforge/pipeline/inputs/recalibration.hpp"
+#include "support/data.hpp"
+#include "support/temp_dir.hpp"
+
+using namespace orbitforge;
+
+namespace recalibration_test {
+
+TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its far side, comes back to the model's",
+          "[pipeline][recalibrate][data]") {
+  const std::string video = "v3d/corgi_bread";
+  if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
+  if (find_program("colmap").empty()) {
+    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
+    WARN("colmap is not installed (Debian package colmap): test skipped");
+    return;
+  }
+  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(video), "1-33", 512, 512);
+  REQUIRE(in.source.size() == 33);
+  const double reference_focal = in.cameras[0].camera.intrinsics.fx;
+
+  // The first cameras: the all-frame model's poses of frames 1-33 with their
+  // focal length 4 % short. The completion: frames 34, 36, ..., 90, no cameras.
+  // In frame order, which is the order along the orbit.
+  const double first_factor = 0.96;
+  std::vector<Camera<double>> first;
+  for (int f : in.source) {
+    first.push_back(in.cameras[std::size_t(f)].camera);
+    first.back().intrinsics.fx *= first_factor;
+    first.back().intrinsics.fy *= first_factor;
+  }
+  std::vector<RecalibrationFrame<double>> frames;
+  for (std::size_t k = 0; k < in.source.size(); ++k) {
+    const int f = in.source[k];
+    frames.push_back({"s" + in.cameras[std::size_t(f)].name, &in.images[std::size_t(f)], true, &first[k]});
+  }
+  std::vector<int> far_side;
+  for (int i = 33; i < int(in.cameras.size()); i += 2) {
+    REQUIRE(in.cameras[std::size_t(i)].valid);
+    far_side.push_back(i);
+    frames.push_back({"c" + in.cameras[std::size_t(i)].name, &in.images[std::size_t(i)], false, nullptr});
+  }
+
+  orbitforge_test::TempDir t("recalibration_test");
+  const Recalibration<double> r = recalibrate_cameras((t.path() / "colmap").string(), frames, RecalibrateParams{}, 2, {});
+  INFO(r.why_not);
+  REQUIRE(r.applied);
+  CHECK(r.source_registered == 33);
+  CHECK(r.completion_registered >= int(far_side.size()) * 9 / 10);
+  CHECK(r.focal_first_px == Approx(first_factor * reference_focal));
+  // Back within 2.5 % of the all-frame model's, where the first cameras were 4 % off.
+  const double focal_error = r.focal_px / reference_focal - 1;
+  CHECK(std::abs(focal_error) < 0.025);
+  CHECK(r.alignment.centre_rms_relative < 0.02);
+
+  // The far side's new cameras against the all-frame model's (the first
+  // cameras are its poses, so the gauge is the same).
+  double spread = 0, centre_sum = 0, turn_sum = 0;
+  int n = 0;
+  for (int f : in.source) spread = std::max(spread, (in.cameras[std::size_t(f)].camera.center() - in.cameras[0].camera.center()).norm());
+  for (int i : far_side) {
+    const auto it = r.cameras.find("c" + in.cameras[std::size_t(i)].name);
+    if (it == r.cameras.end()) continue;
+    const Camera<double>& truth = in.cameras[std::size_t(i)].camera;
+    centre_sum += (it->second.center() - truth.center()).norm();
+    turn_sum += rotation_angle_deg(it->second.R, truth.R);
+    ++n;
+    CHECK(it->second.intrinsics.fx == Approx(r.focal_px));
+  }
+  REQUIRE(n > 0);
+  CHECK(centre_sum / n < 0.03 * spread);
+  CHECK(turn_sum / n < 1.5);
+  WARN("corgi_bread: focal " << r.focal_first_px << " px -> " << r.focal_px << " (all-frame model " << reference_focal
+                             << "); far side: centre error " << centre_sum / n / spread << " of the arc's chord, turn "
+                             << turn_sum / n << " deg on average; " << r.completion_registered << " of "
+                             << far_side.size() << " registered");
+}
+
+}  // namespace recalibration_test
