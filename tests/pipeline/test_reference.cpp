@@ -135,4 +135,56 @@ TEST_CASE("attach_reference refuses a reference of another video or size", "[pip
   CHECK_THROWS_WITH(attach_reference(user, bigger, "big"), Catch::Contains("loaded at 64x32"));
 }
 
+
+TEST_CASE("carry_camera: a held-out view is placed in another estimate as its neighbours are",
+          "[pipeline][reference]") {
+  // `to`: 40 cameras on a circle around the origin, looking at it. `from`: the same
+  // cameras in another gauge, each turned by a disagreement that changes slowly
+  // along the orbit (up to 1.5 degrees), as two estimates of one orbit differ.
+  const int views = 40;
+  const Similarity3 gauge = some_gauge();  // from -> to
+  Similarity3 inverse;
+  inverse.scale = 1 / gauge.scale;
+  inverse.R = gauge.R.transpose();
+  inverse.t = -inverse.scale * (inverse.R * gauge.t);
+  Intrinsics<double> k;
+  k.fx = k.fy = 50, k.cx = 16, k.cy = 16, k.width = k.height = 32;
+  auto truth = [&](int i) {
+    const double a = 2 * Constants<double>::pi() * i / views;
+    const Eigen::Matrix3d wrc = Eigen::AngleAxisd(a + Constants<double>::pi(), Eigen::Vector3d::UnitY()).toRotationMatrix();
+    return Camera<double>::from_world_T_camera(wrc, Eigen::Vector3d(3 * std::sin(a), 0.5, 3 * std::cos(a)), k);
+  };
+  auto other_estimate = [&](int i) {
+    const Camera<double> c = truth(i);
+    const double deg = 1.5 * std::sin(2 * Constants<double>::pi() * i / views);
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(deg * Constants<double>::pi() / 180, Eigen::Vector3d(1, 0.3, 0).normalized()).toRotationMatrix();
+    return inverse.apply(Camera<double>::from_world_T_camera(turn * c.R.transpose(), c.center(), k));
+  };
+  std::vector<double> position;
+  std::vector<Camera<double>> from, to;
+  for (int i = 0; i < views; ++i) {
+    if (i % 2 == 1) continue;  // the odd views are held out
+    position.push_back(i);
+    from.push_back(other_estimate(i));
+    to.push_back(truth(i));
+  }
+  const EstimatePairs<double> e = estimate_pairs(position, from, to, views + 1);
+  CHECK(std::abs(e.global.transform.scale - gauge.scale) < 0.05 * gauge.scale);
+  double global_error = 0, carried_error = 0;
+  for (int i = 1; i < views; i += 2) {
+    const Camera<double> want = truth(i);
+    const Camera<double> global = e.global.transform.apply(other_estimate(i));
+    const Camera<double> carried = carry_camera(other_estimate(i), double(i), e, 4);
+    global_error += rotation_angle_deg(global.R, want.R) / (views / 2);
+    carried_error += rotation_angle_deg(carried.R, want.R) / (views / 2);
+    CHECK((carried.center() - want.center()).norm() < 0.05);
+    CHECK(carried.intrinsics.fx == k.fx);
+  }
+  CHECK(global_error > 0.5);                 // a similarity leaves the disagreement ...
+  CHECK(carried_error < 0.2 * global_error); // ... the neighbours take most of it away
+  // Without neighbours the camera is only moved by the similarity.
+  const Camera<double> plain = carry_camera(other_estimate(3), 3.0, e, 0);
+  CHECK((plain.center() - e.global.transform.apply(other_estimate(3)).center()).norm() < 1e-12);
+}
+
 }  // namespace reference_test

@@ -164,4 +164,63 @@ nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<
           {"gap_azimuth_error_deg", {{"frames", n}, {"mean_abs", n ? sum_abs / n : 0.0}, {"max_abs", max_abs}}}};
 }
 
+// The same frames' cameras in two estimates (`from`, `to`) and each frame's
+// place on the canonical orbit (in views), for carrying a camera from one
+// estimate into the other.
+template <class Scalar>
+struct EstimatePairs {
+  std::vector<double> position;
+  std::vector<Camera<Scalar>> from, to;
+  int views = 0;  // the orbit's period, for distances along it
+  CameraAlignment global;  // from -> to, fitted on every pair
+};
+
+template <class Scalar>
+EstimatePairs<Scalar> estimate_pairs(std::vector<double> position, std::vector<Camera<Scalar>> from,
+                                     std::vector<Camera<Scalar>> to, int views) {
+  EstimatePairs<Scalar> e;
+  e.global = align_camera_centres(from, to);
+  e.position = std::move(position);
+  e.from = std::move(from);
+  e.to = std::move(to);
+  e.views = views;
+  return e;
+}
+
+// `cam` of `from`'s estimate, at orbit position `position`, in `to`'s: moved
+// by the similarity fitted on every pair, then turned and shifted by the mean
+// disagreement that remains at its `k` nearest pairs along the orbit. Two
+// estimates of one orbit differ by more than a similarity (a degree or so from
+// frame to frame on the recorded videos), slowly along the orbit, so a held-out
+// view is placed as its neighbours are. The frame's own image plays no part.
+template <class Scalar>
+Camera<Scalar> carry_camera(const Camera<Scalar>& cam, double position, const EstimatePairs<Scalar>& e, int k) {
+  const Camera<double> moved = e.global.transform.apply(cam).template cast<double>();
+  std::vector<std::pair<double, std::size_t>> by_distance;
+  const double period = double(std::max(e.views - 1, 1));
+  for (std::size_t i = 0; i < e.position.size(); ++i) {
+    const double d = std::abs(wrap_deg_180((e.position[i] - position) * 360.0 / period));
+    by_distance.push_back({d, i});
+  }
+  const std::size_t n = std::min(by_distance.size(), std::size_t(std::max(k, 0)));
+  if (n == 0) return moved.template cast<Scalar>();
+  std::partial_sort(by_distance.begin(), by_distance.begin() + std::ptrdiff_t(n), by_distance.end());
+  Eigen::Vector3d turn = Eigen::Vector3d::Zero(), shift = Eigen::Vector3d::Zero();
+  for (std::size_t j = 0; j < n; ++j) {
+    const std::size_t i = by_distance[j].second;
+    const Camera<double> a = e.global.transform.apply(e.from[i]).template cast<double>();
+    const Camera<double> b = e.to[i].template cast<double>();
+    // world_R_camera of b times its inverse of a: the world-frame turn from a to b.
+    const Eigen::AngleAxisd d(Eigen::Matrix3d(b.R.transpose() * a.R));
+    turn += d.angle() * d.axis() / double(n);
+    shift += (b.center() - a.center()) / double(n);
+  }
+  const double angle = turn.norm();
+  const Eigen::Matrix3d world_turn =
+      angle > 0 ? Eigen::AngleAxisd(angle, turn / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d world_R_camera = world_turn * moved.R.transpose();
+  return Camera<double>::from_world_T_camera(world_R_camera, moved.center() + shift, moved.intrinsics)
+      .template cast<Scalar>();
+}
+
 }  // namespace orbitforge
