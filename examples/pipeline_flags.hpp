@@ -250,6 +250,10 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                   f.sift_peak_threshold)
       ->check(positive())
       ->group(cameras);
+  add_setting_flag(app, "--recalibrate", p.recalibrate.enabled, true,
+                   "once the completion is back, COLMAP again on the source frames and the completion together, "
+                   "and G1 at those cameras (default: G1 at the source cameras as estimated)")
+      ->group(cameras);
 }
 
 // Parses argv with the options `define(f)` returns an App for. The protocol sets
@@ -286,6 +290,7 @@ inline void end_pipeline_flags(const CLI::App& app, PipelineFlags& f) {
   f.background.reset();
   if (!f.background_text.empty() && !f.random_background) f.background = parse_rgb(f.background_text);
   if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError(app.get_name() + ": give --focal or --fov, not both");
+  f.params.recalibrate.hold_focal = f.focal_px > 0 || f.fov_deg > 0;  // a known lens stays known
 }
 
 // Writes OUT/settings.toml, the run's resolved settings (settings_text), which
@@ -391,6 +396,7 @@ PipelineInput<Scalar> load_estimated_input(const std::string& program, const std
                       " (cameras: COLMAP registered " + std::to_string(cr.registered_names.size()) + " of " +
                       std::to_string(cr.source_names.size()) + " source frames)";
   input.camera_path = "estimated from the source frames only";
+  input.estimated_cameras = true;
   finish_recorded_input(program, input, f);
   if (!reference.empty()) {
     const PipelineInput<Scalar> ref = load_colmap_input<Scalar>(reference, f.frames, input.width, input.height);

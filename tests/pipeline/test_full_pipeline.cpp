@@ -179,6 +179,10 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
     REQUIRE(r.at("stages").contains(s));
     CHECK(r["stages"][s].get<double>() >= 0);
   }
+  // Recorded cameras: G1 trains at them; only cameras the method estimated are estimated again.
+  CHECK_FALSE(r.at("stages").contains("recalibrate"));
+  CHECK_FALSE(fs::exists(dir / "recalibrate"));
+  CHECK_FALSE(r.at("cameras").contains("recalibrated"));
   CHECK(r.at("total_seconds").get<double>() > 0);
   for (const char* k : {"R0", "R1"})
     for (const char* f : {"A", "M", "closed"}) REQUIRE(r.at("coverage").at(k).contains(f));
@@ -812,4 +816,53 @@ TEST_CASE("pipeline: G1 gives completion frames the source's lens unless told to
   const auto kept = g1_frames(run, vhat(), G1Data::paper);
   CHECK(kept[1].camera.intrinsics.fx == 110);
   CHECK(kept[1].camera.intrinsics.fy == 111);
+}
+
+TEST_CASE("pipeline: after the recalibrate stage G1 trains at its cameras and lens, G0's scoring keeps the first",
+          "[pipeline][g1]") {
+  Intrinsics<double> first_k;
+  first_k.fx = first_k.fy = 100, first_k.cx = 32, first_k.cy = 24, first_k.width = 64, first_k.height = 48;
+  PipelineInput<double> in;
+  in.cameras.resize(1);
+  in.cameras[0].camera.intrinsics = first_k;
+  in.cameras[0].camera.t = Eigen::Vector3d(0, 0, 3);
+  PipelineRun<double> run;
+  run.input = &in;
+  run.fit.views = 5;
+  Camerad canonical;
+  canonical.intrinsics = first_k;
+  run.fit.cameras.assign(5, canonical);
+
+  G1Cameras<double> g;
+  g.lens = first_k;
+  g.lens.fx = g.lens.fy = 104;
+  Camerad source = in.cameras[0].camera, registered = canonical;
+  source.intrinsics = g.lens;
+  source.t = Eigen::Vector3d(0.01, 0, 3);
+  registered.intrinsics = g.lens;
+  registered.R = Eigen::AngleAxisd(0.2, Eigen::Vector3d(0, 1, 0)).toRotationMatrix();
+  g.source[0] = source;
+  g.completion[1] = registered;  // V_hat's frame 1; frame 2 was not registered
+  run.g1_cameras = g;
+
+  std::vector<VhatFrame<double>> v(3);
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    v[i].image = Image<double>(64, 48, 3);
+    v[i].camera = canonical;
+    v[i].camera.t = Eigen::Vector3d(0, 0, 2 + double(i));
+    v[i].position = double(i);
+  }
+  v[0].from_r0 = true;
+  const auto frames = g1_frames(run, v, G1Data::paper);
+  REQUIRE(frames.size() == 3);
+  CHECK(frames[0].camera.intrinsics.fx == 100);  // R0's render keeps its canonical camera
+  CHECK(frames[1].camera.R.isApprox(registered.R));  // the registered frame at its new camera
+  CHECK(frames[1].camera.intrinsics.fx == 104);
+  CHECK(frames[2].camera.t.isApprox(v[2].camera.t));  // the other at the provider's pose, with G1's lens
+  CHECK(frames[2].camera.intrinsics.fx == 104);
+
+  CHECK(run.source_camera(0, true).t.isApprox(source.t));  // R1 is scored at G1's source cameras ...
+  CHECK(run.source_camera(0, false).t.isApprox(in.cameras[0].camera.t));  // ... R0 at G0's
+  CHECK(run.completion_camera(canonical, 64, 48, true).intrinsics.fx == 104);
+  CHECK(run.completion_camera(canonical, 64, 48, false).intrinsics.fx == 100);
 }

@@ -12,6 +12,7 @@
 #include "orbitforge/geometry/completion_layout.hpp"
 #include "orbitforge/geometry/orbit.hpp"
 #include "orbitforge/pipeline/completion/perturbed.hpp"
+#include "orbitforge/pipeline/inputs/recalibration.hpp"
 #include "orbitforge/pipeline/progress.hpp"
 #include "orbitforge/train/trainer.hpp"
 
@@ -86,6 +87,9 @@ struct PipelineParams {
   // reference model's focal length, a few per cent off the source cameras':
   // G1 then trains on two lenses (docs/cameras.md measures what that costs).
   bool g1_source_lens = true;
+  // G1's cameras on the user's path: COLMAP again on the source frames and the
+  // completion together (stages/recalibrate.hpp).
+  RecalibrateParams recalibrate;
   int g1_source_repeats = 1;        // sampling weights (TrainFrame::repeats) of source frames ...
   int g1_completion_repeats = 1;    // ... and of completion frames
   // Comparisons for audits (each one more reconstruction; not part of the method):

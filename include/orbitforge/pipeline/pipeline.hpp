@@ -8,6 +8,8 @@
 //   static_proxy  (diagnostic) G0 rendered frame-varying, fixed
 //                 slice and MedianGS along the orbit, stability  -> static_proxy.json
 //   completion    provider (completion.hpp) + assembly of V_hat  -> vhat.json, vhat/NNNN.png (+ the provider's folder)
+//   recalibrate   (user's path) G1's cameras from COLMAP on the
+//                 source frames and the completion together      -> recalibrate/cameras.json
 //   g1            reconstruction of V_hat with its cameras (from
 //                 Gmed0 by default), bake, R1                    -> g1/checkpoint.bin, final.ply, R1/NNNN.png
 //   g1_paper      (comparison, on request) G1 on the paper's V_hat   -> g1_paper/
@@ -45,6 +47,7 @@
 #include "orbitforge/pipeline/stages/g0.hpp"
 #include "orbitforge/pipeline/stages/g1.hpp"
 #include "orbitforge/pipeline/stages/orbit.hpp"
+#include "orbitforge/pipeline/stages/recalibrate.hpp"
 #include "orbitforge/pipeline/stages/report.hpp"
 #include "orbitforge/pipeline/stages/static_proxy.hpp"
 
@@ -84,6 +87,7 @@ nlohmann::json run_pipeline(const PipelineInput<Scalar>& input, const PipelinePa
   timed("g0", [&] { stage_g0(run); });
   timed("static_proxy", [&] { stage_static_proxy(run); });
   timed("completion", [&] { stage_completion(run, *provider); });
+  timed("recalibrate", [&] { stage_recalibrate(run); });
   timed("g1", [&] { stage_g1(run); });
   if (params.compare_g1_paper) timed("g1_paper", [&] { stage_g1_paper(run); });
   if (params.oracle_bound) timed("bound", [&] { stage_bound(run); });

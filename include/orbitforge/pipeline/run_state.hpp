@@ -8,6 +8,7 @@
 #include <functional>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -112,6 +113,15 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
 
 }  // namespace pipeline_detail
 
+// G1's cameras where the recalibrate stage replaced the first ones
+// (stages/recalibrate.hpp): one lens, in the run's frame.
+template <class Scalar>
+struct G1Cameras {
+  std::map<int, Camera<Scalar>> source;      // by input index
+  std::map<int, Camera<Scalar>> completion;  // by index into V_hat (vhat.json's frames)
+  Intrinsics<Scalar> lens;                   // at the working size
+};
+
 template <class Scalar>
 struct PipelineRun {
   std::string out;
@@ -121,11 +131,21 @@ struct PipelineRun {
   OrbitFit<Scalar> fit;
   CompletionLayout layout;
   PromptResult prompt;
+  std::optional<G1Cameras<Scalar>> g1_cameras;  // set by the recalibrate stage when it replaced them
   std::map<std::string, std::string> keys;  // stage -> key
   std::vector<std::string> ran, skipped;    // stage names
   std::function<void(const std::string&)> log = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
   int input_index_of_source(int t) const { return input->source[std::size_t(fit.source[std::size_t(t)].input_index)]; }
+
+  // A source frame's camera (input index) for G1 (`for_g1`) or G0.
+  const Camera<Scalar>& source_camera(int frame, bool for_g1) const {
+    if (for_g1 && g1_cameras) {
+      const auto it = g1_cameras->source.find(frame);
+      if (it != g1_cameras->source.end()) return it->second;
+    }
+    return input->cameras[std::size_t(frame)].camera;
+  }
 
   // params.train with the fields the pipeline owns set from their owners
   // (refused when params.train contradicts them: check_train_owners).
@@ -142,15 +162,17 @@ struct PipelineRun {
     return t;
   }
 
-  // The camera G1 gives a completion frame the provider placed at `cam`, its
-  // image width x height: with params.g1_source_lens the source cameras' focal
-  // lengths (their median, the canonical cameras', scaled to that size), as a
-  // video model continuing the source would film it, and the provider's pose and
-  // principal point; else `cam` as given. Gap views are scored at the same
-  // camera, so that the score measures the scene, not two estimates' focal lengths.
-  Camera<Scalar> completion_camera(Camera<Scalar> cam, int width, int height) const {
+  // The camera G1 (`for_g1`; else G0) gives a completion frame the provider
+  // placed at `cam`, its image width x height: with params.g1_source_lens the
+  // source cameras' focal length (their median, the canonical cameras'; G1's
+  // own after the recalibrate stage), scaled to that size, as a video model
+  // continuing the source would film it, and the provider's pose and principal
+  // point; else `cam` as given. Gap views are scored at the same camera, so that
+  // the score measures the scene, not two estimates' focal lengths.
+  Camera<Scalar> completion_camera(Camera<Scalar> cam, int width, int height, bool for_g1 = true) const {
     if (!params.g1_source_lens) return cam;
-    const Intrinsics<Scalar> k = fit.cameras.front().intrinsics.resized(width, height);
+    const Intrinsics<Scalar>& lens = for_g1 && g1_cameras ? g1_cameras->lens : fit.cameras.front().intrinsics;
+    const Intrinsics<Scalar> k = lens.resized(width, height);
     cam.intrinsics.fx = k.fx;
     cam.intrinsics.fy = k.fy;
     return cam;

@@ -76,6 +76,7 @@ struct PipelineInput {
   // Where the cameras came from, for the report: a figure measured on cameras
   // estimated with frames outside the source is a lab figure.
   std::string camera_path = "recorded";
+  bool estimated_cameras = false;  // estimated by the method from the source frames (the cameras stage)
   std::optional<ReferenceInfo<Scalar>> reference;
   std::map<int, Camera<Scalar>> scoring_cameras;  // frames scored at another camera than their own
   // The similarity from the recorded model's frame to the one cameras and points

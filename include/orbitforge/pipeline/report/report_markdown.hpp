@@ -119,6 +119,16 @@ inline std::string report_markdown(const nlohmann::json& r) {
       else
         md << "not applied, " << num(at(refine, "why")) << ".";
     }
+    const auto& recal = at(cams, "recalibrated");
+    if (recal.is_object()) {
+      md << " G1's cameras, estimated again on the source and completion frames: ";
+      if (at(recal, "applied") == true)
+        md << "focal length " << num(at(recal, "focal_px", "first"), 1) << " -> "
+           << num(at(recal, "focal_px", "recalibrated"), 1) << " px, " << num(at(recal, "registered", "completion"))
+           << " of " << num(at(recal, "registered", "completion_frames")) << " completion frames registered.";
+      else
+        md << "not used, " << num(at(recal, "why_not")) << ".";
+    }
     const auto& ref = at(cams, "reference");
     if (ref.is_object()) {
       md << "\n\nAgainst the reference model " << num(at(ref, "reference")) << " (aligned on "

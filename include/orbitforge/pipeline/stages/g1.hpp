@@ -49,14 +49,15 @@ TrainFrame<Scalar> orbit_frame(const PipelineRun<Scalar>& run, Image<Scalar> ima
   return f;
 }
 
-// The training source frames (G0's), at their estimated cameras.
+// The training source frames (G0's), at G1's cameras (the recalibrated ones,
+// or the estimated ones G0 had).
 template <class Scalar>
 void add_source_frames(const PipelineRun<Scalar>& run, std::vector<TrainFrame<Scalar>>& frames, int repeats) {
   const auto& in = *run.input;
   for (int t = 0; t < int(run.fit.source.size()); ++t) {
     const int idx = run.input_index_of_source(t);
     if (in.is_withheld(idx)) continue;
-    const auto& cam = in.cameras[std::size_t(idx)].camera;
+    const auto& cam = run.source_camera(idx, true);
     frames.push_back(orbit_frame(run, in.images[std::size_t(idx)], cam, orbit_position(run.fit, cam),
                                  "source " + in.cameras[std::size_t(idx)].name, repeats));
   }
@@ -115,11 +116,15 @@ std::vector<TrainFrame<Scalar>> g1_frames(const PipelineRun<Scalar>& run, std::v
   const auto& p = run.params;
   std::vector<TrainFrame<Scalar>> frames;
   if (data == G1Data::source) g1_detail::add_source_frames(run, frames, p.g1_source_repeats);
-  for (auto& v : vhat) {
+  for (std::size_t i = 0; i < vhat.size(); ++i) {
+    auto& v = vhat[i];
     if (v.from_r0 && data == G1Data::source && !p.g1_arc_renders) continue;
     const int repeats = v.from_r0 ? 1 : p.g1_completion_repeats;
-    const Camera<Scalar> cam =
-        v.from_r0 ? v.camera : run.completion_camera(v.camera, v.image.width, v.image.height);
+    Camera<Scalar> cam = v.from_r0 ? v.camera : run.completion_camera(v.camera, v.image.width, v.image.height);
+    if (!v.from_r0 && run.g1_cameras) {
+      const auto it = run.g1_cameras->completion.find(int(i));
+      if (it != run.g1_cameras->completion.end()) cam = it->second;
+    }
     frames.push_back(g1_detail::orbit_frame(run, std::move(v.image), cam, v.position, v.origin, repeats));
   }
   ensure(!frames.empty(), "pipeline: G1 has no training frames");
@@ -139,7 +144,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
   settings["arc_renders"] = p.g1_arc_renders;
   settings["reuse_r0"] = reuse;
   settings["render_stride"] = p.render_stride;
-  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("recalibrate"))));
   run.keys["g1"] = key;
   std::vector<std::string> outputs = {"final.ply", "final.spz"};
   if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/training.json", "g1/frames.json"});
@@ -175,7 +180,7 @@ void stage_g1_paper(PipelineRun<Scalar>& run) {
   std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", run.input->frame, &reuse);
   if (reuse) return;  // no completion: G1 is Gmed0 whatever its data
   const nlohmann::json settings = g1_detail::second_settings(run, "paper", true);
-  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("completion"))));
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(run.keys.at("recalibrate"))));
   run.keys["g1_paper"] = key;
   const std::vector<std::string> outputs = {"g1_paper/checkpoint.bin", "g1_paper/training.json", "g1_paper/frames.json",
                                             "g1_paper/final.ply"};
@@ -222,8 +227,8 @@ void stage_bound(PipelineRun<Scalar>& run) {
   }
   nlohmann::json settings = g1_detail::second_settings(run, "oracle bound", p.g1_deformable);
   settings["same_as_g1"] = same_as_g1;
-  const std::string key =
-      hex64(fnv1a(settings.dump(), fnv1a(same_as_g1 ? run.keys.at("g1") : run.keys.at("g0"))));
+  const std::string& after = same_as_g1 ? run.keys.at("g1") : run.g1_cameras ? run.keys.at("recalibrate") : run.keys.at("g0");
+  const std::string key = hex64(fnv1a(settings.dump(), fnv1a(after)));
   run.keys["bound"] = key;
   std::vector<std::string> outputs = {"bound/frames.json", "bound/bound.ply"};
   if (!same_as_g1) outputs.insert(outputs.begin(), {"bound/checkpoint.bin", "bound/training.json"});

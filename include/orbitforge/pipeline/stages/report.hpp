@@ -5,7 +5,9 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -21,6 +23,7 @@
 #include "orbitforge/pipeline/report/reference.hpp"
 #include "orbitforge/pipeline/report/report_markdown.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
+#include "orbitforge/pipeline/stages/completion.hpp"
 
 namespace orbitforge {
 
@@ -37,13 +40,58 @@ nlohmann::json coverage_json(const std::vector<double>& azimuth_deg) {
 // that pose (PipelineRun::completion_camera), for gap views.
 enum class ScoreAt { own, reference, completion };
 
+// Whose cameras a scene is scored at: G0's (R0) or G1's (R1 and the
+// comparisons), which differ after the recalibrate stage.
+enum class CamerasOf { g0, g1 };
+
+// After the recalibrate stage G1's cameras are another estimate than the one
+// the reference was aligned to, and differ from it by more than a similarity
+// (a degree or two on the recorded videos). R1's yardstick then carries the
+// reference's cameras into G1's estimate (carry_camera, reference.hpp), from
+// every frame both place: the source frames (the reference's aligned cameras
+// against G1's) and the registered completion frames (the reference's camera of
+// the recorded frame a completion frame shows, else its provider's, against
+// G1's). Null without a reference or a recalibration.
+template <class Scalar>
+std::optional<EstimatePairs<Scalar>> reference_in_g1(const PipelineRun<Scalar>& run) {
+  const auto& in = *run.input;
+  if (!in.reference || !run.g1_cameras) return std::nullopt;
+  std::vector<double> position;
+  std::vector<Camera<Scalar>> from, to;
+  for (const auto& [f, cam] : run.g1_cameras->source) {
+    const auto it = in.reference->source_cameras.find(f);
+    if (it == in.reference->source_cameras.end()) continue;
+    position.push_back(orbit_position(run.fit, it->second));
+    from.push_back(it->second);
+    to.push_back(cam);
+  }
+  std::map<std::string, int> outside_source;  // recorded frames outside the source, by name
+  for (std::size_t i = 0; i < in.cameras.size(); ++i)
+    if ((int(i) < in.source_first || int(i) > in.source_last) && in.cameras[i].valid)
+      outside_source[in.cameras[i].name] = int(i);
+  const std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame);
+  for (const auto& [i, cam] : run.g1_cameras->completion) {
+    const VhatFrame<Scalar>& v = vhat.at(std::size_t(i));
+    const std::string shown = v.origin.substr(v.origin.find_last_of(' ') + 1);  // "recorded 034.jpg" -> "034.jpg"
+    const auto it = outside_source.find(shown);
+    position.push_back(v.position);
+    from.push_back(it != outside_source.end() ? in.cameras[std::size_t(it->second)].camera : v.camera);
+    to.push_back(cam);
+  }
+  return estimate_pairs(std::move(position), std::move(from), std::move(to), run.fit.views);
+}
+
+// The neighbours carry_camera averages over: two on each side of a gap view.
+constexpr int kCarryNeighbours = 4;
+
 // `fit_view`: each view's camera is first turned and zoomed
 // about its centre to fit its image (metrics/view_alignment.hpp, the scene
 // fixed), and where the fit moved it the view is rendered again there and scored;
 // the fits are reported.
 template <class Scalar>
 nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
-                          const std::vector<int>& frames, ScoreAt at, bool fit_view = false) {
+                          const std::vector<int>& frames, ScoreAt at, CamerasOf of,
+                          const std::optional<EstimatePairs<Scalar>>& in_g1, bool fit_view = false) {
   nlohmann::json j = {{"psnr", nullptr}, {"ssim", nullptr}, {"views", 0}};
   if (frames.empty()) return j;
   Renderer<Scalar> r = run.renderer();
@@ -53,8 +101,14 @@ nlohmann::json quality_of(const PipelineRun<Scalar>& run, const GaussianScene<Sc
   for (int i : frames) {
     const auto& fc = run.input->cameras[std::size_t(i)];
     const Image<Scalar>& image = run.input->images[std::size_t(i)];
-    Camera<Scalar> cam = at == ScoreAt::own ? fc.camera : run.input->scoring_camera(i);
-    if (at == ScoreAt::completion) cam = run.completion_camera(cam, image.width, image.height);
+    const bool g1 = of == CamerasOf::g1;
+    Camera<Scalar> cam = at == ScoreAt::own ? run.source_camera(i, g1) : run.input->scoring_camera(i);
+    if (g1 && in_g1 && at != ScoreAt::own) {  // the reference's camera in G1's estimate
+      const bool outside_source = i < run.input->source_first || i > run.input->source_last;
+      cam = outside_source ? carry_camera(cam, orbit_position(run.fit, cam), *in_g1, kCarryNeighbours)
+                           : in_g1->global.transform.apply(cam);
+    }
+    if (at == ScoreAt::completion) cam = run.completion_camera(cam, image.width, image.height, g1);
     Image<Scalar> rendered = r.render(SceneView<Scalar>(scene), cam).color;
     if (fit_view) {
       const ViewAlignment a = fit_view_alignment(rendered, image, cam.intrinsics);
@@ -111,7 +165,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   std::uint64_t h = fnv1a(run.keys.at("static_proxy"), fnv1a(run.keys.at("g1")));
   for (const char* extra : {"g1_paper", "bound"})
     if (run.keys.count(extra)) h = fnv1a(run.keys.at(extra), h);
-  const std::string key = hex64(fnv1a(p.score_view_fitted ? "report v7 view-fitted" : "report v7", h));
+  const std::string key = hex64(fnv1a(p.score_view_fitted ? "report v9 view-fitted" : "report v9", h));
   run.keys["report"] = key;
   const std::vector<std::string> outputs = {"report.json", "report.md", "contact_sheet.png", "support_mask.png",
                                             "top_view.png"};
@@ -167,33 +221,34 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   // them: COLMAP saw every source frame); with a reference, also at its aligned
   // cameras, which adds the two estimates' disagreement to the method's error.
   double view_fit_secs = 0;  // evaluation only: not the method's time
-  auto rows = [&](const GaussianScene<Scalar>& scene) {
-    nlohmann::json j{{"supported_train", quality_of(run, scene, supported_train, ScoreAt::own)},
-                     {"supported_heldout", quality_of(run, scene, supported_heldout, ScoreAt::own)},
-                     {"gap_heldout", quality_of(run, scene, gap.heldout, ScoreAt::completion)}};
+  const std::optional<EstimatePairs<Scalar>> in_g1 = reference_in_g1(run);
+  auto rows = [&](const GaussianScene<Scalar>& scene, CamerasOf of) {
+    nlohmann::json j{{"supported_train", quality_of(run, scene, supported_train, ScoreAt::own, of, in_g1)},
+                     {"supported_heldout", quality_of(run, scene, supported_heldout, ScoreAt::own, of, in_g1)},
+                     {"gap_heldout", quality_of(run, scene, gap.heldout, ScoreAt::completion, of, in_g1)}};
     if (!in.scoring_cameras.empty())
-      j["supported_heldout_at_reference"] = quality_of(run, scene, supported_heldout, ScoreAt::reference);
+      j["supported_heldout_at_reference"] = quality_of(run, scene, supported_heldout, ScoreAt::reference, of, in_g1);
     // On the user's path with the source lens, the gap views at the reference's
     // own lens too: a focal-length disagreement of a few per cent shows there.
     if (in.reference && p.g1_source_lens)
-      j["gap_heldout_at_reference_lens"] = quality_of(run, scene, gap.heldout, ScoreAt::reference);
+      j["gap_heldout_at_reference_lens"] = quality_of(run, scene, gap.heldout, ScoreAt::reference, of, in_g1);
     // The same views with each camera's turn and zoom fitted to its image: what
     // remains is the scene's error, not the yardstick's (on the user's path the
     // reference's cameras disagree with the user's by tenths of a degree and
     // their focal lengths by a few per cent).
     if (p.score_view_fitted) {
       const auto f0 = std::chrono::steady_clock::now();
-      j["gap_heldout_view_fitted"] = quality_of(run, scene, gap.heldout, ScoreAt::completion, true);
+      j["gap_heldout_view_fitted"] = quality_of(run, scene, gap.heldout, ScoreAt::completion, of, in_g1, true);
       if (!in.scoring_cameras.empty())
         j["supported_heldout_at_reference_view_fitted"] =
-            quality_of(run, scene, supported_heldout, ScoreAt::reference, true);
+            quality_of(run, scene, supported_heldout, ScoreAt::reference, of, in_g1, true);
       view_fit_secs += std::chrono::duration<double>(std::chrono::steady_clock::now() - f0).count();
     }
     return j;
   };
-  nlohmann::json quality = {{"R0", rows(run.read_scene((out / "gmed0.ply").string()))},
-                            {"R1", rows(run.read_scene((out / "final.ply").string()))}};
-  if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(run.read_scene((out / "g1_paper" / "final.ply").string()));
+  nlohmann::json quality = {{"R0", rows(run.read_scene((out / "gmed0.ply").string()), CamerasOf::g0)},
+                            {"R1", rows(run.read_scene((out / "final.ply").string()), CamerasOf::g1)}};
+  if (run.keys.count("g1_paper")) quality["R1_paper"] = rows(run.read_scene((out / "g1_paper" / "final.ply").string()), CamerasOf::g1);
   if (run.keys.count("bound")) {
     // With G1 trained on exactly the oracle's set the bound is G1: its figures would only repeat R1's.
     const nlohmann::json rec = nlohmann::json::parse(read_file_bytes((out / "stages" / "bound.json").string()));
@@ -202,7 +257,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                           {"why", "G1 trained on the oracle's frames with the bound's settings: the bound is G1 by "
                                   "construction, not a separate measurement"}};
     else
-      quality["bound"] = rows(run.read_scene((out / "bound" / "bound.ply").string()));
+      quality["bound"] = rows(run.read_scene((out / "bound" / "bound.ply").string()), CamerasOf::g1);
   }
 
   // Pictures.
@@ -227,8 +282,10 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   // Stage times from the records (a resumed run reports the times of the runs that did the work).
   nlohmann::json stages = nlohmann::json::object();
   double total = 0;
-  for (const char* s : {"orbit", "g0", "static_proxy", "completion", "g1"}) {
+  const bool recalibrated = run.keys.at("recalibrate") != run.keys.at("completion");  // the stage ran or verified
+  for (const char* s : {"orbit", "g0", "static_proxy", "completion", "recalibrate", "g1"}) {
     if (std::string(s) == "static_proxy" && !(p.deformable && p.static_proxy_diagnostics)) continue;
+    if (std::string(s) == "recalibrate" && !recalibrated) continue;
     const double secs = recorded_seconds(run.out, s);
     stages[s] = secs;
     total += secs;
@@ -285,6 +342,17 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                       {"orbit_check", orbit.value("check", nlohmann::json())},
                       {"quality", quality},
                       {"completion", completion}};
+  if (recalibrated) {
+    nlohmann::json rc = nlohmann::json::parse(read_file_bytes((out / "recalibrate" / "cameras.json").string()));
+    rc.erase("frames");
+    if (in_g1)
+      rc["reference_alignment"] = {{"cameras", in_g1->global.cameras},
+                                   {"centre_rms_relative", in_g1->global.centre_rms_relative},
+                                   {"rotation_mean_deg", in_g1->global.rotation_mean_deg},
+                                   {"rotation_max_deg", in_g1->global.rotation_max_deg},
+                                   {"gap_views_carried_by_neighbours", kCarryNeighbours}};
+    r["cameras"]["recalibrated"] = rc;
+  }
   // The frame the run worked in; its files are in the model's own (run_state.hpp).
   if (!in.frame.is_identity())
     r["frame"] = {{"origin", {in.frame.origin[0], in.frame.origin[1], in.frame.origin[2]}},
