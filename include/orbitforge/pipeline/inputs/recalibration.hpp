@@ -176,27 +176,28 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
       to.push_back(*f.first);
     }
   r.alignment = align_camera_centres(from, to);
-  if (r.alignment.centre_rms_relative > p.max_centre_residual) {
-    char b[160];
-    std::snprintf(b, sizeof(b), "the new source cameras fit the first ones only to %.3f of their spread (limit %.3f)",
-                  r.alignment.centre_rms_relative, p.max_centre_residual);
-    r.why_not = b;
-    return r;
-  }
-  if (r.alignment.rotation_mean_deg > p.max_rotation_residual_deg) {
-    char b[160];
-    std::snprintf(b, sizeof(b), "the new source cameras turn from the first ones by %.2f degrees on average (limit %.2f)",
-                  r.alignment.rotation_mean_deg, p.max_rotation_residual_deg);
-    r.why_not = b;
-    return r;
-  }
-  if (std::abs(r.focal_px / r.focal_first_px - 1) > p.max_focal_change) {
-    char b[160];
-    std::snprintf(b, sizeof(b), "the focal length moved from %.1f to %.1f px, more than %.0f %%", r.focal_first_px,
-                  r.focal_px, 100 * p.max_focal_change);
-    r.why_not = b;
-    return r;
-  }
+  // The first test that fails, as "what (limit)"; empty when all pass.
+  const double focal_change = r.focal_px / r.focal_first_px - 1;
+  const struct {
+    bool failed;
+    const char* format;
+    double value, limit;
+  } tests[] = {
+      {r.alignment.centre_rms_relative > p.max_centre_residual,
+       "the new source cameras fit the first ones only to %.3f of their spread (limit %.3f)",
+       r.alignment.centre_rms_relative, p.max_centre_residual},
+      {r.alignment.rotation_mean_deg > p.max_rotation_residual_deg,
+       "the new source cameras turn from the first ones by %.2f degrees on average (limit %.2f)",
+       r.alignment.rotation_mean_deg, p.max_rotation_residual_deg},
+      {std::abs(focal_change) > p.max_focal_change, "the focal length moved by %+.3f of itself (limit %.3f)",
+       focal_change, p.max_focal_change}};
+  for (const auto& t : tests)
+    if (t.failed) {
+      char b[160];
+      std::snprintf(b, sizeof(b), t.format, t.value, t.limit);
+      r.why_not = b;
+      return r;
+    }
   for (const auto& [name, cam] : registered) r.cameras[name] = r.alignment.transform.apply(cam);
   r.applied = true;
   return r;
