@@ -78,6 +78,15 @@ CameraAlignment attach_reference(PipelineInput<Scalar>& user, const PipelineInpu
   return a;
 }
 
+// A camera alignment's figures for report.json: pairs, scale and residuals.
+inline nlohmann::json camera_alignment_json(const CameraAlignment& a) {
+  return {{"cameras", a.cameras},
+          {"scale", a.transform.scale},
+          {"centre_rms_relative", a.centre_rms_relative},
+          {"rotation_mean_deg", a.rotation_mean_deg},
+          {"rotation_max_deg", a.rotation_max_deg}};
+}
+
 namespace reference_detail {
 
 // Least-squares line through (x, y).
@@ -152,12 +161,7 @@ nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<
     return v[v.size() / 2];
   };
   return {{"reference", in.reference->description},
-          {"alignment",
-           {{"cameras", a.cameras},
-            {"scale", a.transform.scale},
-            {"centre_rms_relative", a.centre_rms_relative},
-            {"rotation_mean_deg", a.rotation_mean_deg},
-            {"rotation_max_deg", a.rotation_max_deg}}},
+          {"alignment", camera_alignment_json(a)},
           {"source_arc_deg", {{"user", double(fit.diagnostics.source_span_deg)}, {"reference", ref_arc}}},
           {"focal_px", {{"user", median(user_focal)}, {"reference", median(ref_focal)}}},
           {"orbit_speed_deg_per_frame", speed},

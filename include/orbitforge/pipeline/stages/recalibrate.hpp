@@ -22,6 +22,7 @@
 
 #include "orbitforge/pipeline/inputs/recalibration.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
+#include "orbitforge/pipeline/report/reference.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
 #include "orbitforge/pipeline/stages/completion.hpp"
 
@@ -114,11 +115,7 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
                         {"completion_frames", r.completion_frames}}},
                       {"focal_px", {{"first", r.focal_first_px}, {"recalibrated", r.focal_px}}}};
   if (r.alignment.cameras > 0)
-    j["alignment"] = {{"cameras", r.alignment.cameras},
-                      {"scale", r.alignment.transform.scale},
-                      {"centre_rms_relative", r.alignment.centre_rms_relative},
-                      {"rotation_mean_deg", r.alignment.rotation_mean_deg},
-                      {"rotation_max_deg", r.alignment.rotation_max_deg}};
+    j["alignment"] = camera_alignment_json(r.alignment);
   if (r.applied) {
     nlohmann::json list = nlohmann::json::array();
     for (const auto& [name, cam] : r.cameras) {

@@ -345,12 +345,10 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
   if (recalibrated) {
     nlohmann::json rc = nlohmann::json::parse(read_file_bytes((out / "recalibrate" / "cameras.json").string()));
     rc.erase("frames");
-    if (in_g1)
-      rc["reference_alignment"] = {{"cameras", in_g1->global.cameras},
-                                   {"centre_rms_relative", in_g1->global.centre_rms_relative},
-                                   {"rotation_mean_deg", in_g1->global.rotation_mean_deg},
-                                   {"rotation_max_deg", in_g1->global.rotation_max_deg},
-                                   {"gap_views_carried_by_neighbours", kCarryNeighbours}};
+    if (in_g1) {
+      rc["reference_alignment"] = camera_alignment_json(in_g1->global);
+      rc["reference_alignment"]["gap_views_carried_by_neighbours"] = kCarryNeighbours;
+    }
     r["cameras"]["recalibrated"] = rc;
   }
   // The frame the run worked in; its files are in the model's own (run_state.hpp).
