@@ -19,6 +19,28 @@ using namespace orbitforge;
 
 namespace recalibration_test {
 
+TEST_CASE("recalibration: the refusal names the first test that fails", "[pipeline][recalibrate]") {
+  Recalibration<float> r;
+  r.source_frames = 33;
+  r.source_registered = 33;
+  r.completion_frames = 29;
+  r.completion_registered = 20;
+  r.focal_first_px = 480;
+  r.focal_px = 500;  // +4.2 %
+  r.alignment.centre_rms_relative = 0.01;
+  r.alignment.rotation_mean_deg = 1.0;
+  const RecalibrateParams p;
+  CHECK(recalibration_refusal(r, p).empty());
+  r.focal_px = 540;  // +12.5 %
+  CHECK_THAT(recalibration_refusal(r, p), Catch::Contains("focal length moved by +0.125"));
+  r.alignment.rotation_mean_deg = 2.5;  // reported before the focal length
+  CHECK_THAT(recalibration_refusal(r, p), Catch::Contains("2.50 degrees"));
+  r.completion_registered = 14;  // under half of 29: registration comes first
+  CHECK(recalibration_refusal(r, p) == "COLMAP registered only 14 of 29 completion frames");
+  r.source_registered = 32;
+  CHECK(recalibration_refusal(r, p) == "COLMAP registered 32 of 33 source frames");
+}
+
 TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its far side, comes back to the model's",
           "[pipeline][recalibrate][data]") {
   const std::string video = "v3d/corgi_bread";
@@ -65,6 +87,23 @@ TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its fa
   const double focal_error = r.focal_px / reference_focal - 1;
   CHECK(std::abs(focal_error) < 0.025);
   CHECK(r.alignment.centre_rms_relative < 0.02);
+
+  // The refusal tests on this model: each limit set under what COLMAP gave
+  // names its own failure.
+  CHECK(recalibration_refusal(r, RecalibrateParams{}).empty());
+  const auto refused = [&r](auto tighten) {
+    RecalibrateParams p;
+    tighten(p);
+    return recalibration_refusal(r, p);
+  };
+  CHECK_THAT(refused([&](RecalibrateParams& p) { p.max_focal_change = 0.5 * std::abs(focal_error); }),
+             Catch::Contains("focal length moved"));
+  CHECK_THAT(refused([&](RecalibrateParams& p) { p.max_rotation_residual_deg = 0.5 * r.alignment.rotation_mean_deg; }),
+             Catch::Contains("turn from the first ones"));
+  CHECK_THAT(refused([&](RecalibrateParams& p) { p.max_centre_residual = 0.5 * r.alignment.centre_rms_relative; }),
+             Catch::Contains("fit the first ones only"));
+  CHECK_THAT(refused([](RecalibrateParams& p) { p.min_completion_registered = 1.01; }),
+             Catch::Contains("completion frames"));
 
   // The far side's new cameras against the all-frame model's (the first
   // cameras are its poses, so the gauge is the same).

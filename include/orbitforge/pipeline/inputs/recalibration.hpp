@@ -14,7 +14,8 @@
 // length nearer an all-frame model's). The new cameras are kept only when every
 // source frame is registered, enough of the completion's frames are, and the
 // new model is the first one's orbit refined (RecalibrateParams); otherwise
-// `why_not` says which test failed and the caller keeps the first cameras.
+// `why_not` says which test failed (recalibration_refusal) and the caller
+// keeps the first cameras.
 //
 // recalibrate_cameras(dir, ...) writes dir/images/ (the frames as PNG),
 // dir/pairs.txt, dir/database.db, dir/sparse/ (or dir/fixed/ with the focal
@@ -79,6 +80,47 @@ struct Recalibration {
   CameraAlignment alignment;                      // new model -> first cameras (when the tests got that far)
 };
 
+// Why a recalibration must not be used, or "" when it may: first whether
+// COLMAP registered enough frames, then (with the alignment computed) whether
+// the new model is the first cameras' orbit refined. The first test that
+// fails, as "what (limit)".
+template <class Scalar>
+std::string registration_refusal(const Recalibration<Scalar>& r, const RecalibrateParams& p) {
+  if (r.source_registered < r.source_frames)
+    return "COLMAP registered " + std::to_string(r.source_registered) + " of " + std::to_string(r.source_frames) +
+           " source frames";
+  if (double(r.completion_registered) < p.min_completion_registered * double(r.completion_frames))
+    return "COLMAP registered only " + std::to_string(r.completion_registered) + " of " +
+           std::to_string(r.completion_frames) + " completion frames";
+  return {};
+}
+
+template <class Scalar>
+std::string recalibration_refusal(const Recalibration<Scalar>& r, const RecalibrateParams& p) {
+  if (std::string why = registration_refusal(r, p); !why.empty()) return why;
+  const double focal_change = r.focal_px / r.focal_first_px - 1;
+  const struct {
+    bool failed;
+    const char* format;
+    double value, limit;
+  } tests[] = {
+      {r.alignment.centre_rms_relative > p.max_centre_residual,
+       "the new source cameras fit the first ones only to %.3f of their spread (limit %.3f)",
+       r.alignment.centre_rms_relative, p.max_centre_residual},
+      {r.alignment.rotation_mean_deg > p.max_rotation_residual_deg,
+       "the new source cameras turn from the first ones by %.2f degrees on average (limit %.2f)",
+       r.alignment.rotation_mean_deg, p.max_rotation_residual_deg},
+      {std::abs(focal_change) > p.max_focal_change, "the focal length moved by %+.3f of itself (limit %.3f)",
+       focal_change, p.max_focal_change}};
+  for (const auto& t : tests)
+    if (t.failed) {
+      char b[160];
+      std::snprintf(b, sizeof(b), t.format, t.value, t.limit);
+      return b;
+    }
+  return {};
+}
+
 // `frames` in their order along the orbit (either direction), all of one size;
 // every source frame has its first camera, all with one lens. `threads`:
 // COLMAP's (0 = all).
@@ -129,7 +171,8 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
   const int n = int(frames.size()), reach = std::min(p.neighbours, (n - 1) / 2);
   std::string pairs;
   for (int i = 0; i < n; ++i)
-    for (int d = 1; d <= reach; ++d) pairs += frames[std::size_t(i)].name + ' ' + frames[std::size_t((i + d) % n)].name + '\n';
+    for (int d = 1; d <= reach; ++d)
+      pairs += frames[std::size_t(i)].name + ' ' + frames[std::size_t((i + d) % n)].name + '\n';
   const fs::path pairs_file = fs::path(dir) / "pairs.txt";
   write_file_atomic(pairs_file.string(), pairs);
   timed(colmap_pairs_matcher_command(database.string(), pairs_file.string(), cp), "matches_importer.log");
@@ -159,16 +202,8 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
       ++(it->second->source ? r.source_registered : r.completion_registered);
       r.focal_px = double(fc.camera.intrinsics.fx);
     }
-  if (r.source_registered < r.source_frames) {
-    r.why_not = "COLMAP registered " + std::to_string(r.source_registered) + " of " + std::to_string(r.source_frames) +
-                " source frames";
-    return r;
-  }
-  if (double(r.completion_registered) < p.min_completion_registered * double(r.completion_frames)) {
-    r.why_not = "COLMAP registered only " + std::to_string(r.completion_registered) + " of " +
-                std::to_string(r.completion_frames) + " completion frames";
-    return r;
-  }
+  r.why_not = registration_refusal(r, p);
+  if (!r.why_not.empty()) return r;
   std::vector<Camera<Scalar>> from, to;
   for (const auto& f : frames)
     if (f.source) {
@@ -176,28 +211,8 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
       to.push_back(*f.first);
     }
   r.alignment = align_camera_centres(from, to);
-  // The first test that fails, as "what (limit)"; empty when all pass.
-  const double focal_change = r.focal_px / r.focal_first_px - 1;
-  const struct {
-    bool failed;
-    const char* format;
-    double value, limit;
-  } tests[] = {
-      {r.alignment.centre_rms_relative > p.max_centre_residual,
-       "the new source cameras fit the first ones only to %.3f of their spread (limit %.3f)",
-       r.alignment.centre_rms_relative, p.max_centre_residual},
-      {r.alignment.rotation_mean_deg > p.max_rotation_residual_deg,
-       "the new source cameras turn from the first ones by %.2f degrees on average (limit %.2f)",
-       r.alignment.rotation_mean_deg, p.max_rotation_residual_deg},
-      {std::abs(focal_change) > p.max_focal_change, "the focal length moved by %+.3f of itself (limit %.3f)",
-       focal_change, p.max_focal_change}};
-  for (const auto& t : tests)
-    if (t.failed) {
-      char b[160];
-      std::snprintf(b, sizeof(b), t.format, t.value, t.limit);
-      r.why_not = b;
-      return r;
-    }
+  r.why_not = recalibration_refusal(r, p);
+  if (!r.why_not.empty()) return r;
   for (const auto& [name, cam] : registered) r.cameras[name] = r.alignment.transform.apply(cam);
   r.applied = true;
   return r;
