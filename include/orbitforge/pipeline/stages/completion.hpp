@@ -21,11 +21,14 @@
 
 namespace orbitforge {
 
+// Whether read_vhat decodes the frames' images or reads only their cameras.
+enum class VhatImages { load, skip };
+
 // vhat.json's cameras are in the model's frame; `frame` moves them (in double)
 // into the one the run works in.
 template <class Scalar>
 std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::string& file, const SceneFrame& frame,
-                                         bool* reuse_r0 = nullptr) {
+                                         bool* reuse_r0 = nullptr, VhatImages images = VhatImages::load) {
   namespace fs = std::filesystem;
   const std::string path = (fs::path(out) / file).string();
   nlohmann::json j;
@@ -45,7 +48,8 @@ std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::stri
     f.position = e.at("position").get<double>();
     f.origin = e.value("origin", std::string());
     f.from_r0 = e.value("kind", std::string()) == "arc_render";
-    f.image = to_rgb(read_image<Scalar>((fs::path(out) / e.at("file").get<std::string>()).string()));
+    if (images == VhatImages::load)
+      f.image = to_rgb(read_image<Scalar>((fs::path(out) / e.at("file").get<std::string>()).string()));
     frames.push_back(std::move(f));
   }
   return frames;

@@ -227,7 +227,9 @@ void stage_bound(PipelineRun<Scalar>& run) {
   }
   nlohmann::json settings = g1_detail::second_settings(run, "oracle bound", p.g1_deformable);
   settings["same_as_g1"] = same_as_g1;
-  const std::string& after = same_as_g1 ? run.keys.at("g1") : run.g1_cameras ? run.keys.at("recalibrate") : run.keys.at("g0");
+  const std::string& after = same_as_g1        ? run.keys.at("g1")
+                            : run.g1_cameras ? run.keys.at("recalibrate")
+                                             : run.keys.at("g0");
   const std::string key = hex64(fnv1a(settings.dump(), fnv1a(after)));
   run.keys["bound"] = key;
   std::vector<std::string> outputs = {"bound/frames.json", "bound/bound.ply"};

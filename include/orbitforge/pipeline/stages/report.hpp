@@ -69,7 +69,8 @@ std::optional<EstimatePairs<Scalar>> reference_in_g1(const PipelineRun<Scalar>& 
   for (std::size_t i = 0; i < in.cameras.size(); ++i)
     if ((int(i) < in.source_first || int(i) > in.source_last) && in.cameras[i].valid)
       outside_source[in.cameras[i].name] = int(i);
-  const std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame);
+  const std::vector<VhatFrame<Scalar>> vhat =
+      read_vhat<Scalar>(run.out, "vhat.json", in.frame, nullptr, VhatImages::skip);  // cameras only
   for (const auto& [i, cam] : run.g1_cameras->completion) {
     const VhatFrame<Scalar>& v = vhat.at(std::size_t(i));
     const std::string shown = v.origin.substr(v.origin.find_last_of(' ') + 1);  // "recorded 034.jpg" -> "034.jpg"
