@@ -52,7 +52,7 @@ struct SsimWorkspace {
   bool forward_done = false;
   SsimParams params;                        // params of the last forward pass
   std::vector<Scalar> window;               // [window] normalised 1D weights
-  std::vector<Scalar> dmaps;                // [H][3C][W] d mean-SSIM / d(mu_x, G*x^2, G*xy)
+  std::vector<Scalar> dmaps;  // [H][3C][W + 2r] d mean-SSIM / d(mu_x, G*x^2, G*xy), r zeros each side
   std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
   std::vector<double> row_sums;             // [H] per-row partial sums
   std::vector<double> abs_rows, sq_rows;    // [H] combined_loss: per-row sums of |d| and d^2
@@ -116,27 +116,25 @@ void row_taps(const Scalar* in, Scalar* out, std::size_t n, const Scalar* w, int
 }
 
 // out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
-// for each of `planes` consecutive rows of `width` values.
+// for each of `planes` rows of `width` values. The rows lie `width + 2r` apart
+// with r zeros on each side (padded_row_stride), so that every output runs the
+// unrolled taps: computing the 2r outputs at a row's ends one tap at a time,
+// with bounds tests, was a quarter of the pass at 512 wide. A zero tap adds
+// exactly nothing, so the sums are those of the taps cut at the row's ends.
+// (The source rows are written padded where they are made: copying each row
+// between zeros just before filtering it was slower than the bounds tests, its
+// loads waiting on the copy's stores.)
 template <class Scalar>
 void filter_row(const Scalar* __restrict in, Scalar* __restrict out, int width, int planes, const Scalar* w, int r) {
-  // One output with taps cut at the row's ends.
-  auto edge = [&](const Scalar* row, int i) {
-    Scalar acc = w[r] * row[i];
-    for (int d = 1; d <= r; ++d) {
-      const Scalar a = i - d >= 0 ? row[i - d] : Scalar(0), b = i + d < width ? row[i + d] : Scalar(0);
-      acc = std::fma(w[r + d], a + b, acc);
-    }
-    return acc;
-  };
-  const int begin = std::min(r, width), end = std::max(begin, width - r);  // [begin, end): every tap inside
-  const std::size_t inner = std::size_t(end - begin);
-  for (int p = 0; p < planes; ++p, in += width, out += width) {
-    for (int i = 0; i < begin; ++i) out[i] = edge(in, i);
-    if (r == 5) row_taps<5>(in + begin, out + begin, inner, w, r);  // the default 11-tap window
-    else row_taps<0>(in + begin, out + begin, inner, w, r);
-    for (int i = end; i < width; ++i) out[i] = edge(in, i);
+  const std::size_t n = std::size_t(width), stride = n + 2 * std::size_t(r);
+  for (int p = 0; p < planes; ++p, in += stride, out += width) {
+    if (r == 5) row_taps<5>(in + r, out, n, w, r);  // the default 11-tap window
+    else row_taps<0>(in + r, out, n, w, r);
   }
 }
+
+// Values from one padded plane to the next: the plane's width and r zeros on each side.
+inline std::size_t padded_row_stride(int width, int r) { return std::size_t(width) + 2 * std::size_t(r); }
 
 // The column pass: out[k][i] = w[r] in[k + r][i] + sum_{d = 1..r} w[r + d]
 // (in[k + r - d][i] + in[k + r + d][i]) for four consecutive output rows (k =
@@ -203,8 +201,10 @@ void column_taps1(const Scalar* const* in, Scalar* out, std::size_t n, const Sca
 // rows at a time (column_taps4). A full-image intermediate made the loss memory
 // bound (it scaled 1.3x on two cores). Bands overlap by r rows on each side,
 // which are filtered twice.
-//   source(y, scratch) -> pointer to row y's `planes` x W values (may fill scratch)
-//   sink(y, filtered, scratch) gets row y filtered in 2D and a W-value scratch.
+//   source(y, scratch) -> pointer to row y's `planes` planes of W values, each
+//     between r zeros (padded_row_stride apart); it may fill scratch, which
+//     has that layout with its zeros in place
+//   sink(y, filtered, scratch) gets row y filtered in 2D (planes W apart) and a W-value scratch.
 // Each output row is the same sum in the same order whatever the banding, so the
 // results do not depend on the thread count.
 template <class Scalar, class Source, class Sink>
@@ -213,7 +213,8 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
   constexpr int K = 4;  // output rows per column pass
   const std::size_t len = std::size_t(planes) * std::size_t(W);
   const int win = 2 * r + 1, ring_rows = win + K - 1;
-  const std::size_t need = std::size_t(ring_rows + K + 2) * len + std::size_t(W);
+  const std::size_t padded_len = std::size_t(planes) * padded_row_stride(W, r);
+  const std::size_t need = std::size_t(ring_rows + K + 1) * len + padded_len + std::size_t(W);
   if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
   for (auto& b : ws.rows)
     if (b.size() < need) b.resize(need);
@@ -221,11 +222,12 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
   const int bands = std::max(1, std::min(4 * threads, H / 64));
   parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
     Scalar* ring = ws.rows[std::size_t(worker)].data();
-    Scalar* raw = ring + std::size_t(ring_rows) * len;
-    Scalar* cols = raw + len;  // K filtered output rows
+    Scalar* raw = ring + std::size_t(ring_rows) * len;  // one padded source row
+    Scalar* cols = raw + padded_len;                     // K filtered output rows
     Scalar* zeros = cols + std::size_t(K) * len;
     Scalar* scratch = zeros + len;
     std::fill(zeros, zeros + len, Scalar(0));
+    std::fill(raw, raw + padded_len, Scalar(0));
     std::vector<const Scalar*> in(std::size_t(K + win - 1));
     Scalar* out[K];
     for (int k = 0; k < K; ++k) out[k] = cols + std::size_t(k) * len;
@@ -252,18 +254,18 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
 }
 
 // The five planar products of one interleaved row (planes x, y, x^2, y^2, xy,
-// each C channels). CC > 0 fixes the channel count at compile time, which lets
-// the compiler vectorise the stride-C loads.
+// each C channels, `stride` apart). CC > 0 fixes the channel count at compile
+// time, which lets the compiler vectorise the stride-C loads.
 template <int CC, class Scalar>
 void products_row(const Scalar* __restrict x, const Scalar* __restrict t, Scalar* __restrict prod, std::size_t W,
-                  int channels) {
+                  std::size_t stride, int channels) {
   const std::size_t C = CC > 0 ? std::size_t(CC) : std::size_t(channels);
   for (std::size_t c = 0; c < C; ++c) {
-    Scalar* __restrict px_ = prod + c * W;
-    Scalar* __restrict py_ = prod + (C + c) * W;
-    Scalar* __restrict pxx = prod + (2 * C + c) * W;
-    Scalar* __restrict pyy = prod + (3 * C + c) * W;
-    Scalar* __restrict pxy = prod + (4 * C + c) * W;
+    Scalar* __restrict px_ = prod + c * stride;
+    Scalar* __restrict py_ = prod + (C + c) * stride;
+    Scalar* __restrict pxx = prod + (2 * C + c) * stride;
+    Scalar* __restrict pyy = prod + (3 * C + c) * stride;
+    Scalar* __restrict pxy = prod + (4 * C + c) * stride;
     for (std::size_t px = 0; px < W; ++px) {
       const Scalar a = x[px * C + c], b = t[px * C + c];
       px_[px] = a;
@@ -316,7 +318,13 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   threads = resolve_threads(threads);
 
   gaussian_window<Scalar>(params, ws.window);
-  ws.dmaps.resize(std::size_t(W) * S3 * std::size_t(H));
+  const int r = params.window / 2;
+  const std::size_t stride = padded_row_stride(W, r);
+  // The derivative maps are the backward's source rows: padded, their zeros
+  // written here once per shape.
+  if (ws.width != W || ws.height != H || ws.channels != C || ws.params.window != params.window ||
+      ws.dmaps.size() != stride * std::size_t(S3) * std::size_t(H))
+    ws.dmaps.assign(stride * std::size_t(S3) * std::size_t(H), Scalar(0));
   ws.row_sums.resize(std::size_t(H));
   ws.width = W;
   ws.height = H;
@@ -325,7 +333,6 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   ws.forward_done = false;
 
   const Scalar* w = ws.window.data();
-  const int r = params.window / 2;
   const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
   const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
 
@@ -336,13 +343,13 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   auto products = [&](int y, Scalar* prod) -> const Scalar* {
     const Scalar* x = pred.data.data() + std::size_t(y) * Wz * std::size_t(C);
     const Scalar* t = target.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    if (C == 3) products_row<3>(x, t, prod, Wz, C);
-    else products_row<0>(x, t, prod, Wz, C);
+    if (C == 3) products_row<3>(x, t, prod + r, Wz, stride, C);
+    else products_row<0>(x, t, prod + r, Wz, stride, C);
     return prod;
   };
   auto ssim_row = [&](int yi, const Scalar* m, Scalar* vals) {
     const std::size_t y = std::size_t(yi);
-    Scalar* dm = ws.dmaps.data() + y * Wz * std::size_t(S3);
+    Scalar* dm = ws.dmaps.data() + y * stride * std::size_t(S3) + std::size_t(r);
     double row_sum = 0;
     for (int c = 0; c < C; ++c) {
       const Scalar* __restrict mmx = m + std::size_t(c) * Wz;
@@ -350,9 +357,9 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
       const Scalar* __restrict mxx = m + std::size_t(2 * C + c) * Wz;
       const Scalar* __restrict myy = m + std::size_t(3 * C + c) * Wz;
       const Scalar* __restrict mxy = m + std::size_t(4 * C + c) * Wz;
-      Scalar* __restrict d0 = dm + std::size_t(c) * Wz;
-      Scalar* __restrict d1 = dm + std::size_t(C + c) * Wz;
-      Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * Wz;
+      Scalar* __restrict d0 = dm + std::size_t(c) * stride;
+      Scalar* __restrict d1 = dm + std::size_t(C + c) * stride;
+      Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * stride;
       // Explicit SIMD: GCC leaves this loop scalar ("no vectype"), and it was
       // most of the loss's time.
       auto ssim_at = [&](auto lanes, std::size_t px) {
@@ -411,7 +418,7 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
   }
   const int W = pred.width, H = pred.height, C = pred.channels;
   const int S3 = 3 * C;
-  const std::size_t row3 = std::size_t(W) * S3;
+  const std::size_t row3 = padded_row_stride(W, ws.params.window / 2) * std::size_t(S3);
   threads = resolve_threads(threads);
   const Scalar* w = ws.window.data();
   const int r = ws.params.window / 2;
