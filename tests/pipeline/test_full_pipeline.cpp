@@ -200,6 +200,21 @@ TEST_CASE("pipeline: oracle run writes every output, coverage closes, R1 beats R
     CHECK(r["training"][s].at("iterations").get<int>() == tiny_params().iters_g0);
     CHECK(r["training"][s].at("still_check").is_null());
     CHECK_FALSE(r["training"][s].at("plateau_stopped").get<bool>());
+    // Where the training time went: every phase timed, and the renderer's
+    // stages within its wall time.
+    const nlohmann::json& t = r["training"][s].at("timing");
+    REQUIRE(t.is_object());
+    CHECK(t.at("iterations").get<int>() == tiny_params().iters_g0);
+    double phases = 0;
+    for (const char* phase : {"projection", "sort_and_binning", "rasterization", "loss", "rasterization_backward",
+                              "projection_backward", "deformation_field", "adam", "densification", "other"}) {
+      INFO(phase);
+      CHECK(t.at(phase).get<double>() >= 0);
+      phases += t.at(phase).get<double>();
+    }
+    CHECK(t.at("rasterization").get<double>() > 0);
+    CHECK(t.at("rasterization_backward").get<double>() > 0);
+    CHECK(phases <= 1.001 * t.at("wall").get<double>());
   }
   REQUIRE(r.at("completion").contains("temporal_trace"));
   REQUIRE(r.at("completion").contains("anchor_index_error"));

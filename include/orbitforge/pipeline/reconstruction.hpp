@@ -61,6 +61,18 @@ bool try_resume(Trainer<Scalar>& trainer, const std::string& file, const std::st
     return false;
   }
 }
+// The "timing" of a training.json written when the training ran, or null: a
+// run that reuses a finished checkpoint keeps the record of the sitting that trained it.
+inline nlohmann::json recorded_timing(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return nullptr;
+  try {
+    const nlohmann::json j = nlohmann::json::parse(read_file_bytes(path));
+    if (j.is_object() && j.contains("timing") && j["timing"].is_object()) return j["timing"];
+  } catch (const std::exception&) {
+  }
+  return nullptr;
+}
 }  // namespace reconstruction_detail
 
 // Trains `frames` from `init` (resuming when it can), saves dir/checkpoint.bin
@@ -85,8 +97,10 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
   }
   const bool trained_now = !trainer.finished();
   bool floor_said = false;
+  TrainingTimes times;
   while (!trainer.finished()) {
     const TrainProgress& pr = trainer.step();
+    times.add(pr);
     const ShortcutState& sc = pr.shortcuts;
     if (pr.spared > 0 && !floor_said) {
       floor_said = true;
@@ -112,9 +126,11 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
     trainer.save_checkpoint(final_ckpt);
     write_file_atomic(final_ckpt + ".key", key);
   }
-  write_file_atomic((fs::path(dir) / "training.json").string(),
-                    training_json(trainer.shortcuts(), tp, trainer.still_check_iteration(), trainer.iteration()).dump(1) +
-                        "\n");
+  const std::string record = (fs::path(dir) / "training.json").string();
+  nlohmann::json training =
+      training_json(trainer.shortcuts(), tp, trainer.still_check_iteration(), trainer.iteration(), times);
+  if (!trained_now) training["timing"] = reconstruction_detail::recorded_timing(record);
+  write_file_atomic(record, training.dump(1) + "\n");
   std::error_code ec;
   fs::remove(partial, ec);
   fs::remove(partial + ".key", ec);
