@@ -128,4 +128,36 @@ TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its fa
                              << far_side.size() << " registered");
 }
 
+TEST_CASE("recalibration: completion frames COLMAP cannot register are refused and nothing is applied",
+          "[pipeline][recalibrate][data]") {
+  const std::string video = "v3d/corgi_bread";
+  if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
+  if (find_program("colmap").empty()) {
+    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
+    WARN("colmap is not installed (Debian package colmap): test skipped");
+    return;
+  }
+  // Every other source frame at its model camera, and six blank frames as the
+  // completion: no features, so none registers.
+  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(video), "1-33", 256, 256);
+  std::vector<RecalibrationFrame<double>> frames;
+  for (std::size_t k = 0; k < in.source.size(); k += 2) {
+    const int f = in.source[k];
+    frames.push_back({"s" + in.cameras[std::size_t(f)].name, &in.images[std::size_t(f)],
+                      true, &in.cameras[std::size_t(f)].camera});
+  }
+  const Image<double> blank(256, 256, 3, 0.5);
+  for (int i = 0; i < 6; ++i) frames.push_back({"c" + std::to_string(i) + ".png", &blank, false, nullptr});
+
+  orbitforge_test::TempDir t("recalibration_refusal_test");
+  const Recalibration<double> r = recalibrate_cameras((t.path() / "colmap").string(), frames, RecalibrateParams{}, 2, {});
+  INFO(r.why_not);
+  REQUIRE(r.source_registered == r.source_frames);
+  CHECK(r.completion_frames == 6);
+  CHECK(r.completion_registered == 0);
+  CHECK_FALSE(r.applied);
+  CHECK(r.cameras.empty());
+  CHECK(r.why_not == "COLMAP registered only 0 of 6 completion frames");
+}
+
 }  // namespace recalibration_test
