@@ -52,7 +52,7 @@ struct SsimWorkspace {
   bool forward_done = false;
   SsimParams params;                        // params of the last forward pass
   std::vector<Scalar> window;               // [window] normalised 1D weights
-  std::vector<Scalar> dmaps;  // [H][3C][W + 2r] d mean-SSIM / d(mu_x, G*x^2, G*xy), r zeros each side
+  std::vector<Scalar> dmaps;                // [H][3C][r zeros, W, r zeros] d mean-SSIM / d(mu_x, G*x^2, G*xy)
   std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
   std::vector<double> row_sums;             // [H] per-row partial sums
   std::vector<double> abs_rows, sq_rows;    // [H] combined_loss: per-row sums of |d| and d^2
@@ -118,8 +118,8 @@ void row_taps(const Scalar* in, Scalar* out, std::size_t n, const Scalar* w, int
 // out[x] = sum_d w[r + d] in[x + d] over |d| <= r, in[] zero outside [0, width),
 // for each of `planes` rows of `width` values. The rows lie `width + 2r` apart
 // with r zeros on each side (padded_row_stride), so that every output runs the
-// unrolled taps: computing the 2r outputs at a row's ends one tap at a time,
-// with bounds tests, was a quarter of the pass at 512 wide. A zero tap adds
+// unrolled taps, where the 2r outputs at a row's ends had been summed one tap
+// at a time behind bounds tests (docs/benchmarks.md measures it). A zero tap adds
 // exactly nothing, so the sums are those of the taps cut at the row's ends.
 // (The source rows are written padded where they are made: copying each row
 // between zeros just before filtering it was slower than the bounds tests, its
