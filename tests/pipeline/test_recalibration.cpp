@@ -2,7 +2,9 @@
 // (pipeline/inputs/recalibration.hpp): with a recorded video's source frames at
 // a focal length 4 % off and the frames of its unseen side, COLMAP closes the
 // loop, the focal length comes back near the all-frame model's, and the new
-// cameras land on the first ones' gauge.
+// cameras land on the first ones' gauge. And the refusals: each test names
+// itself, on constructed figures and on that COLMAP model with its limits
+// tightened, and frames COLMAP cannot register are refused end to end.
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -18,6 +20,20 @@
 using namespace orbitforge;
 
 namespace recalibration_test {
+
+const std::string kVideo = "v3d/corgi_bread";
+
+// The recorded video and COLMAP, or false where either is missing outside CI
+// (have_shared_data and this say which).
+bool have_video_and_colmap() {
+  if (!orbitforge_test::have_shared_data(kVideo + "/sparse/0")) return false;
+  if (find_program("colmap").empty()) {
+    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
+    WARN("colmap is not installed (Debian package colmap): test skipped");
+    return false;
+  }
+  return true;
+}
 
 TEST_CASE("recalibration: the refusal names the first test that fails", "[pipeline][recalibrate]") {
   Recalibration<float> r;
@@ -43,14 +59,8 @@ TEST_CASE("recalibration: the refusal names the first test that fails", "[pipeli
 
 TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its far side, comes back to the model's",
           "[pipeline][recalibrate][data]") {
-  const std::string video = "v3d/corgi_bread";
-  if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
-  if (find_program("colmap").empty()) {
-    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
-    WARN("colmap is not installed (Debian package colmap): test skipped");
-    return;
-  }
-  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(video), "1-33", 512, 512);
+  if (!have_video_and_colmap()) return;
+  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(kVideo), "1-33", 512, 512);
   REQUIRE(in.source.size() == 33);
   const double reference_focal = in.cameras[0].camera.intrinsics.fx;
 
@@ -130,16 +140,10 @@ TEST_CASE("recalibration: corgi_bread's arc at a wrong focal length, with its fa
 
 TEST_CASE("recalibration: completion frames COLMAP cannot register are refused and nothing is applied",
           "[pipeline][recalibrate][data]") {
-  const std::string video = "v3d/corgi_bread";
-  if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
-  if (find_program("colmap").empty()) {
-    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
-    WARN("colmap is not installed (Debian package colmap): test skipped");
-    return;
-  }
+  if (!have_video_and_colmap()) return;
   // Every other source frame at its model camera, and six blank frames as the
   // completion: no features, so none registers.
-  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(video), "1-33", 256, 256);
+  const PipelineInput<double> in = load_colmap_input<double>(orbitforge_test::shared_path(kVideo), "1-33", 256, 256);
   std::vector<RecalibrationFrame<double>> frames;
   for (std::size_t k = 0; k < in.source.size(); k += 2) {
     const int f = in.source[k];
