@@ -80,10 +80,7 @@ struct Recalibration {
   CameraAlignment alignment;                      // new model -> first cameras (when the tests got that far)
 };
 
-// Why a recalibration must not be used, or "" when it may: first whether
-// COLMAP registered enough frames, then (with the alignment computed) whether
-// the new model is the first cameras' orbit refined. The first test that
-// fails, as "what (limit)".
+// Why COLMAP's registration is not enough to go on, or "".
 template <class Scalar>
 std::string registration_refusal(const Recalibration<Scalar>& r, const RecalibrateParams& p) {
   if (r.source_registered < r.source_frames)
@@ -95,6 +92,9 @@ std::string registration_refusal(const Recalibration<Scalar>& r, const Recalibra
   return {};
 }
 
+// Why a recalibration must not be used, or "" when it may: the registration,
+// then (with the alignment computed) whether the new model is the first
+// cameras' orbit refined. The first test that fails, as "what (limit)".
 template <class Scalar>
 std::string recalibration_refusal(const Recalibration<Scalar>& r, const RecalibrateParams& p) {
   if (std::string why = registration_refusal(r, p); !why.empty()) return why;
