@@ -71,9 +71,12 @@ constexpr int dense_column_group() {
 
 // Rows [row0, row0 + NB L) of columns [j, j + NC) over the weight columns
 // [k0, k1) of one term: the first panel starts from the bias, the others from
-// the partial sums in z; the last applies the activation.
+// the partial sums in z; the last applies the activation. Not inlined: where
+// GCC inlined it into the backward's gradient through a layer (Mlp::back_through)
+// it kept the NB x NC accumulators on the stack, a load and a store around
+// every multiply-add.
 template <class B, int NB, int NC>
-inline void dense_forward_block(Eigen::Index rows, Eigen::Index row0, const DenseTerm<typename B::value_type>& term,
+[[gnu::noinline]] void dense_forward_block(Eigen::Index rows, Eigen::Index row0, const DenseTerm<typename B::value_type>& term,
                                 Eigen::Index k0, Eigen::Index k1, bool first, bool last,
                                 const typename B::value_type* bias, Eigen::Index j, typename B::value_type* z,
                                 Eigen::Index ldz, bool relu) {
