@@ -60,11 +60,15 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
   const fs::path dir = fs::path(run.out) / "recalibrate";
   run.g1_cameras.reset();
   bool reuse = false;
-  const std::vector<VhatFrame<Scalar>> vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame, &reuse);
+  std::vector<VhatFrame<Scalar>> vhat;
   std::vector<int> completion;  // indices into vhat
-  for (std::size_t i = 0; i < vhat.size(); ++i)
-    if (!vhat[i].from_r0) completion.push_back(int(i));
-  if (!p.recalibrate.enabled || !in.estimated_cameras || reuse || completion.empty()) {
+  if (p.recalibrate.enabled && in.estimated_cameras) {
+    // Cameras first: the frames' images are decoded only when COLMAP runs.
+    vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame, &reuse, VhatImages::skip);
+    for (std::size_t i = 0; i < vhat.size(); ++i)
+      if (!vhat[i].from_r0) completion.push_back(int(i));
+  }
+  if (reuse || completion.empty()) {  // also when the stage is off or the cameras were given
     run.keys["recalibrate"] = run.keys.at("completion");  // G1's key as without the stage
     return;
   }
@@ -86,6 +90,7 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
     return;
   }
 
+  vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame, nullptr, VhatImages::load);
   // The frames in their order along the orbit (the neighbours COLMAP matches).
   std::vector<std::pair<double, RecalibrationFrame<Scalar>>> along;
   std::map<std::string, std::pair<const char*, int>> what;  // name -> (kind, index)
