@@ -102,6 +102,53 @@ TEMPLATE_TEST_CASE("image does not depend on tile size or thread count", "[rende
     }
 }
 
+TEST_CASE("tile lanes: every pixel once, in blocks where the tile size allows", "[render]") {
+  struct Case { int tile, lanes, block_w, block_h; };  // block 0 x 0: runs of consecutive pixels
+  for (const Case c : {Case{16, 16, 4, 4}, Case{16, 8, 4, 2}, Case{16, 4, 2, 2}, Case{16, 2, 2, 1}, Case{16, 1, 1, 1},
+                       Case{12, 16, 4, 4}, Case{8, 8, 4, 2}, Case{5, 16, 0, 0}, Case{6, 16, 0, 0}, Case{1, 8, 0, 0}}) {
+    INFO("tile " << c.tile << " lanes " << c.lanes);
+    TileLanes<float> L;
+    L.build(c.tile, c.lanes);
+    const int pixels = c.tile * c.tile;
+    REQUIRE(L.chunks == (pixels + c.lanes - 1) / c.lanes);
+    std::vector<int> seen(std::size_t(pixels), 0);
+    for (int k = 0; k < L.chunks; ++k) {
+      float x_lo = 1e30f, x_hi = -1e30f, y_lo = 1e30f, y_hi = -1e30f;
+      for (int l = 0; l < c.lanes; ++l) {
+        const std::size_t q = std::size_t(k * c.lanes + l);
+        const int p = L.pixel[q];
+        if (p < 0) {  // padding: only after the last pixel, and below any image
+          CHECK(k == L.chunks - 1);
+          CHECK(L.oy[q] >= float(1 << 23));
+          continue;
+        }
+        REQUIRE(p < pixels);
+        ++seen[std::size_t(p)];
+        CHECK(L.ox[q] == float(p % c.tile) + 0.5f);
+        CHECK(L.oy[q] == float(p / c.tile) + 0.5f);
+        x_lo = std::min(x_lo, L.ox[q]); x_hi = std::max(x_hi, L.ox[q]);
+        y_lo = std::min(y_lo, L.oy[q]); y_hi = std::max(y_hi, L.oy[q]);
+      }
+      // The chunk's bounds are those of its own pixel centres (scalar culling relies on it).
+      CHECK(L.cx_lo[std::size_t(k)] == x_lo);
+      CHECK(L.cx_hi[std::size_t(k)] == x_hi);
+      CHECK(L.cy_lo[std::size_t(k)] == y_lo);
+      CHECK(L.cy_hi[std::size_t(k)] == y_hi);
+      if (c.block_w > 0) {
+        CHECK(x_hi - x_lo == float(c.block_w - 1));
+        CHECK(y_hi - y_lo == float(c.block_h - 1));
+      } else {
+        const int first = L.pixel[std::size_t(k * c.lanes)];
+        for (int l = 1; l < c.lanes; ++l) {
+          const int p = L.pixel[std::size_t(k * c.lanes + l)];
+          if (p >= 0) CHECK(p == first + l);
+        }
+      }
+    }
+    CHECK(std::count(seen.begin(), seen.end(), 1) == pixels);
+  }
+}
+
 TEMPLATE_TEST_CASE("scalar kernel matches the SIMD kernel", "[render]", float, double) {
   using S = TestType;
   auto s = random_splats<S>(500, 45, 37, 31);

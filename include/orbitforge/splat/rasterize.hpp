@@ -14,9 +14,11 @@
 // number of Gaussians blended, and per pixel how many tile-list entries the
 // backward pass must replay (list position of the last blended Gaussian + 1).
 //
-// A tile of ts x ts pixels is cut into "chunks" of B::size consecutive pixels in
-// row-major order (ts = 16 and 16 float lanes: one chunk per row). Lanes past the
-// image border or the tile are dead from the start.
+// A tile of ts x ts pixels is cut into "chunks" of B::size pixels, one per lane:
+// square-ish blocks (16 lanes: 4x4, 8: 4x2, 4: 2x2) where ts allows, else runs of
+// consecutive pixels in row-major order (TileLanes). Lanes past the image border
+// or the tile are dead from the start. Each pixel's arithmetic and order do not
+// depend on the layout, so neither does the image.
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -63,6 +65,11 @@ struct RasterOutput {
 
 // Pixel offsets of the lanes of each chunk of a tile, for one tile size and lane
 // count, plus each chunk's pixel-centre bounding box (for scalar culling).
+// Chunks are blocks of bw x bh pixels, bw the smallest power of two with
+// bw^2 >= lanes, in row-major block order. Trained scenes are mostly Gaussians a
+// few pixels wide: a 4x4 block wastes fewer lanes on them than a 16-pixel row
+// (doll: the forward 0.70x, the backward 0.80x of the row layout's time).
+// A tile size the blocks do not divide falls back to runs of consecutive pixels.
 template <class Scalar>
 struct TileLanes {
   int tile_size = 0, lanes = 0, chunks = 0;
@@ -82,12 +89,18 @@ struct TileLanes {
     pixel.assign(total, -1);
     cx_lo.assign(std::size_t(chunks), Scalar(1e30)); cx_hi.assign(std::size_t(chunks), Scalar(-1e30));
     cy_lo.assign(std::size_t(chunks), Scalar(1e30)); cy_hi.assign(std::size_t(chunks), Scalar(-1e30));
-    for (int p = 0; p < pixels; ++p) {
-      const int k = p / lanes;
+    int bw = 1;
+    while (bw * bw < lanes) bw *= 2;
+    const int bh = lanes / bw;
+    const bool blocks = bw * bh == lanes && ts % bw == 0 && ts % bh == 0;
+    const int blocks_per_row = blocks ? ts / bw : 0;
+    for (int q = 0; q < pixels; ++q) {  // lane slot q = chunk k, lane l
+      const int k = q / lanes, l = q % lanes;
+      const int p = blocks ? ((k / blocks_per_row) * bh + l / bw) * ts + (k % blocks_per_row) * bw + l % bw : q;
       const Scalar x = Scalar(p % ts) + Scalar(0.5), y = Scalar(p / ts) + Scalar(0.5);
-      ox[std::size_t(p)] = x;
-      oy[std::size_t(p)] = y;
-      pixel[std::size_t(p)] = p;
+      ox[std::size_t(q)] = x;
+      oy[std::size_t(q)] = y;
+      pixel[std::size_t(q)] = p;
       cx_lo[std::size_t(k)] = std::min(cx_lo[std::size_t(k)], x); cx_hi[std::size_t(k)] = std::max(cx_hi[std::size_t(k)], x);
       cy_lo[std::size_t(k)] = std::min(cy_lo[std::size_t(k)], y); cy_hi[std::size_t(k)] = std::max(cy_hi[std::size_t(k)], y);
     }
