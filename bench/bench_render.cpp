@@ -22,6 +22,11 @@
 // against BM_ExpBlendLoop: the same evaluation (conic power, exp, alpha, colour
 // and transmittance blend) in a plain SIMD loop with every operand in registers
 // or L1, the speed one core sustains without tiles, lists or early stops.
+// BM_RasterKernelsScene: the same kernels on a scene of your own, e.g. one that
+// full_pipeline trained, at every K-th camera of a camera or orbit file; it is
+// registered only when the environment names them:
+//   ORBITFORGE_BENCH_PLY=out/doll/final.ply ORBITFORGE_BENCH_CAMERAS=out/doll/orbit.json \
+//   [ORBITFORGE_BENCH_EVERY=24] bench_render --benchmark_filter=Scene
 //
 //   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
 #include <benchmark/benchmark.h>
@@ -31,9 +36,14 @@
 #include <map>
 #include <memory>
 #include <random>
+#include <cstdlib>
 #include <ctime>
+#include <string>
 
+#include "orbitforge/io/ply.hpp"
+#include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/densify.hpp"
 
 using namespace orbitforge;
 
@@ -246,6 +256,77 @@ void BM_RasterKernels(benchmark::State& state) {
   state.counters["fwd_ns_eval"] = fwd * k * 1e6 / e;
   state.counters["bwd_ns_eval"] = bwd * k * 1e6 / e;
 }
+
+// BM_RasterKernels on a given scene and cameras (header comment): each camera's
+// bins are made once, then every pass runs the forward and backward kernels at
+// all of them, one thread, thread CPU time. The same counters, summed over the
+// cameras.
+void BM_RasterKernelsScene(benchmark::State& state, const std::string& ply, const std::string& cameras_file,
+                           int every) {
+  const GaussianScenef s = read_ply<float>(ply);
+  const std::vector<Cameraf> all = read_cameras_json<float>(cameras_file);
+  struct View {
+    BinWorkspace<float> bins;
+    RasterOutput<float> out;
+    Imagef v_color;
+  };
+  std::vector<std::unique_ptr<View>> views;
+  ProjectionParams pp;
+  pp.near_plane = 0.01 * double(camera_extent(all));  // as training and render_orbit set it
+  ProjectedSplats<float> splats;
+  for (std::size_t i = 0; i < all.size(); i += std::size_t(every)) {
+    auto v = std::make_unique<View>();
+    const int w = all[i].intrinsics.width, h = all[i].intrinsics.height;
+    project_scene(SceneView<float>(s), all[i], pp, splats, nullptr, 1);
+    bin_splats(splats, w, h, 16, v->bins);
+    v->v_color = Imagef(w, h, 3, 1.f);
+    views.push_back(std::move(v));
+  }
+  RasterWorkspace<float> ws;
+  RasterGradOutput<float> grad;
+  RasterParams<float> rp;
+  rp.threads = 1;
+  double fwd = 0, bwd = 0, pixels = 0, contributions = 0, evaluated = 0;
+  for (auto& v : views) {  // warm-up: the first frame allocates
+    rasterize(v->bins, rp, v->out, ws);
+    rasterize_vjp(v->bins, rp, v->out, v->v_color, nullptr, nullptr, s.size(), grad, ws);
+    pixels += double(v->bins.grid.pixel_count());
+    contributions += double(v->out.stats.contributions);
+    evaluated += double(v->out.stats.pairs_evaluated);
+  }
+  for (auto _ : state) {
+    for (auto& v : views) {
+      const double t0 = thread_cpu_ms();
+      rasterize(v->bins, rp, v->out, ws);
+      const double t1 = thread_cpu_ms();
+      rasterize_vjp(v->bins, rp, v->out, v->v_color, nullptr, nullptr, s.size(), grad, ws);
+      const double t2 = thread_cpu_ms();
+      fwd += t1 - t0; bwd += t2 - t1;
+    }
+  }
+  const double k = 1.0 / double(state.iterations());
+  const double c = std::max(1.0, contributions), e = std::max(1.0, evaluated);
+  state.counters["views"] = double(views.size());
+  state.counters["contrib_px"] = c / std::max(1.0, pixels);
+  state.counters["evaluated_px"] = e / std::max(1.0, pixels);
+  state.counters["fwd_cpu_ms"] = fwd * k;
+  state.counters["bwd_cpu_ms"] = bwd * k;
+  state.counters["fwd_ns_contrib"] = fwd * k * 1e6 / c;
+  state.counters["bwd_ns_contrib"] = bwd * k * 1e6 / c;
+}
+
+// Registered before main runs, only when the environment names a scene.
+const bool scene_registered = [] {
+  const char* ply = std::getenv("ORBITFORGE_BENCH_PLY");
+  const char* cameras = std::getenv("ORBITFORGE_BENCH_CAMERAS");
+  if (!ply || !cameras) return false;
+  const char* every = std::getenv("ORBITFORGE_BENCH_EVERY");
+  const int k = every ? std::max(1, std::atoi(every)) : 24;
+  benchmark::RegisterBenchmark("BM_RasterKernelsScene", BM_RasterKernelsScene, std::string(ply), std::string(cameras), k)
+      ->Unit(benchmark::kMillisecond)
+      ->MinTime(0.3);
+  return true;
+}();
 
 // A plain exp-and-blend loop: a 16x16 tile of pixels (in native float batches)
 // against a list of Gaussians (mean, conic in base-2 units, opacity, colour),
