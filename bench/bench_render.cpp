@@ -44,6 +44,7 @@
 #include "orbitforge/pipeline/orbit_file.hpp"
 #include "orbitforge/splat/renderer.hpp"
 #include "orbitforge/train/densify.hpp"
+#include "orbitforge/train/train_params.hpp"
 
 using namespace orbitforge;
 
@@ -272,7 +273,7 @@ void BM_RasterKernelsScene(benchmark::State& state, const std::string& ply, cons
   };
   std::vector<std::unique_ptr<View>> views;
   ProjectionParams pp;
-  pp.near_plane = 0.01 * double(camera_extent(all));  // as training and render_orbit set it
+  pp.near_plane = TrainParams{}.near_plane_fraction * double(camera_extent(all));  // as training and render_orbit set it
   ProjectedSplats<float> splats;
   for (std::size_t i = 0; i < all.size(); i += std::size_t(every)) {
     auto v = std::make_unique<View>();
