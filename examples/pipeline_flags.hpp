@@ -43,6 +43,7 @@ struct PipelineFlags {
   // whether to search the focal length otherwise.
   double focal_px = 0, fov_deg = 0;
   bool focal_search = false;
+  bool recalibrate_hold_focal = false;
   std::string orbit_refine = "flagged";
   double sift_peak_threshold = 0;  // 0: COLMAP's, again at 0.004 when features are few
   // A COLMAP model without 3D points: COLMAP triangulates the training frames at
@@ -254,6 +255,10 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                    "once the completion is back, COLMAP again on the source frames and the completion together, "
                    "and G1 at those cameras (default: G1 at the source cameras as estimated)")
       ->group(cameras);
+  add_setting_flag(app, "--recalibrate-hold-focal", f.recalibrate_hold_focal, true,
+                   "--recalibrate keeps the source cameras' focal length instead of estimating it again with the "
+                   "completion's frames (always so with --focal / --fov)")
+      ->group(cameras);
 }
 
 // Parses argv with the options `define(f)` returns an App for. The protocol sets
@@ -290,7 +295,7 @@ inline void end_pipeline_flags(const CLI::App& app, PipelineFlags& f) {
   f.background.reset();
   if (!f.background_text.empty() && !f.random_background) f.background = parse_rgb(f.background_text);
   if (f.focal_px > 0 && f.fov_deg > 0) throw UsageError(app.get_name() + ": give --focal or --fov, not both");
-  f.params.recalibrate.hold_focal = f.focal_px > 0 || f.fov_deg > 0;  // a known lens stays known
+  f.params.recalibrate.hold_focal = f.recalibrate_hold_focal || f.focal_px > 0 || f.fov_deg > 0;  // a known lens stays known
 }
 
 // Writes OUT/settings.toml, the run's resolved settings (settings_text), which
