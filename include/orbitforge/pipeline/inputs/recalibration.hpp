@@ -49,9 +49,10 @@ struct RecalibrateParams {
   std::string camera_model = "SIMPLE_PINHOLE";
   // Keep the first cameras' focal length: always when the user gave the lens;
   // opt-in otherwise. It keeps warped completion frames from lengthening it,
-  // but on sunflower, whose oracle stops 46 degrees short of the loop, the
-  // held lens let COLMAP close the loop with the far side 13 degrees off the
-  // all-frame model's, and R1 lost 2 dB (docs/cameras.md).
+  // but on sunflower, whose oracle stops 46 degrees short of the loop, COLMAP
+  // closed the loop across that hole with the lens held, G1's cameras came out
+  // 13 degrees from the all-frame model's on average, and R1's gap lost 1.7-2.1
+  // dB (docs/cameras.md).
   bool hold_focal = false;
   double init_min_tri_angle_deg = 4;       // as the cameras stage's (CameraStageParams)
   int neighbours = 10;                     // frames matched on each side along the orbit
