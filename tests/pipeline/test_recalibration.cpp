@@ -88,6 +88,9 @@ struct FarSideCase {
       frames.push_back({"c" + in.cameras[std::size_t(i)].name, &in.images[std::size_t(i)], false, nullptr});
     }
   }
+  // `frames` points into `in` and `first`.
+  FarSideCase(const FarSideCase&) = delete;
+  FarSideCase& operator=(const FarSideCase&) = delete;
 
   // The far side's new cameras against the all-frame model's (the first
   // cameras are its poses, so the gauge is the same): mean centre error as a
