@@ -92,6 +92,18 @@ struct FarSideCase {
   FarSideCase(const FarSideCase&) = delete;
   FarSideCase& operator=(const FarSideCase&) = delete;
 
+  // The stage on these frames with `p`; every source frame and nine in ten
+  // of the far side's must register and the new cameras be applied.
+  Recalibration<double> recalibrate(const RecalibrateParams& p) const {
+    orbitforge_test::TempDir t("recalibration_test");
+    Recalibration<double> r = recalibrate_cameras((t.path() / "colmap").string(), frames, p, 2, {});
+    INFO(r.why_not);
+    REQUIRE(r.applied);
+    CHECK(r.source_registered == 33);
+    CHECK(r.completion_registered >= int(far_side.size()) * 9 / 10);
+    return r;
+  }
+
   // The far side's new cameras against the all-frame model's (the first
   // cameras are its poses, so the gauge is the same): mean centre error as a
   // fraction of the source arc's chord, and mean turn in degrees.
@@ -124,12 +136,7 @@ TEST_CASE("recalibration: refitting the lens, corgi_bread's arc at a wrong focal
 
   const RecalibrateParams p;
   REQUIRE_FALSE(p.hold_focal);
-  orbitforge_test::TempDir t("recalibration_test");
-  const Recalibration<double> r = recalibrate_cameras((t.path() / "colmap").string(), c.frames, p, 2, {});
-  INFO(r.why_not);
-  REQUIRE(r.applied);
-  CHECK(r.source_registered == 33);
-  CHECK(r.completion_registered >= int(c.far_side.size()) * 9 / 10);
+  const Recalibration<double> r = c.recalibrate(p);
   CHECK(r.focal_first_px == Approx(first_factor * c.reference_focal));
   // Back within 2.5 % of the all-frame model's, where the first cameras were 4 % off.
   const double focal_error = r.focal_px / c.reference_focal - 1;
@@ -168,12 +175,7 @@ TEST_CASE("recalibration: with the lens held, the focal length stays and the far
   const FarSideCase c(1.0);
   RecalibrateParams p;
   p.hold_focal = true;
-  orbitforge_test::TempDir t("recalibration_hold_test");
-  const Recalibration<double> r = recalibrate_cameras((t.path() / "colmap").string(), c.frames, p, 2, {});
-  INFO(r.why_not);
-  REQUIRE(r.applied);
-  CHECK(r.source_registered == 33);
-  CHECK(r.completion_registered >= int(c.far_side.size()) * 9 / 10);
+  const Recalibration<double> r = c.recalibrate(p);
   CHECK(r.focal_px == Approx(c.reference_focal).epsilon(1e-6));  // held: COLMAP did not move it
   CHECK(r.alignment.centre_rms_relative < 0.02);
   CHECK(r.alignment.rotation_mean_deg < 1.0);
