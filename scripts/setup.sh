@@ -2,7 +2,7 @@
 # Installs orbitforge's build dependencies from Debian 12's packages.
 set -euo pipefail
 packages=(build-essential cmake ninja-build ccache pkg-config
-  libeigen3-dev libxsimd-dev libstb-dev nlohmann-json3-dev zlib1g-dev
+  libeigen3-dev libxsimd-dev libstb-dev nlohmann-json3-dev zlib1g-dev libsqlite3-dev
   libcli11-dev catch2 libbenchmark-dev python3-matplotlib clang libclang-rt-14-dev
   ffmpeg colmap)  # full_pipeline --video / --images and their tests run these two programs
 missing=()
