@@ -1,6 +1,6 @@
 #pragma once
 // The settings of the cameras stage and the command lines of the programs it
-// runs (ffmpeg, COLMAP's feature_extractor, sequential_matcher or matches_importer, and mapper),
+// runs (ffmpeg, COLMAP's feature_extractor, matches_importer and mapper),
 // built as argument vectors (pipeline/inputs/external_tools.hpp runs them), and the
 // COLMAP model files the stage writes or picks.
 //
@@ -35,7 +35,7 @@ struct CameraStageParams {
   std::string frames = "1-33";  // the source range: the only frames COLMAP sees
   double fps = 0;               // video only: resample to this frame rate (0 = every decoded frame)
   std::string camera_model = "SIMPLE_PINHOLE";  // one camera for all frames: SIMPLE_PINHOLE or PINHOLE
-  int sequential_overlap = 10;                  // sequential_matcher: neighbours matched per frame
+  int sequential_overlap = 10;                  // as COLMAP's sequential_matcher: neighbours matched per frame
   // A generated orbit turns a few degrees per frame, so the default 16 degrees
   // for the initial pair rejects every nearby pair; v3d's cameras were made with 4.
   double init_min_tri_angle_deg = 4;
@@ -143,10 +143,11 @@ inline ToolCommand colmap_feature_extractor_command(const std::string& database,
     c.argv.push_back("--SiftExtraction.peak_threshold");
     c.argv.push_back(cameras_detail::number_text(p.sift_peak_threshold));
   }
-  if (p.threads > 0) {
-    c.argv.push_back("--SiftExtraction.num_threads");
-    c.argv.push_back(std::to_string(p.threads));
-  }
+  // One thread: on more, images get their database ids in the order they
+  // finish, and the mapper's result depends on the ids (the same frames, two
+  // runs: two different models).
+  c.argv.push_back("--SiftExtraction.num_threads");
+  c.argv.push_back("1");
   return c;
 }
 
@@ -172,12 +173,16 @@ inline ToolCommand colmap_sequential_matcher_command(const std::string& database
       "sequential_matcher", database, {"--SequentialMatching.overlap", std::to_string(p.sequential_overlap)}, p);
 }
 
-// The image pairs listed in `pairs_file` (two image names a line): the
-// recalibrate stage's neighbours along a closed orbit.
-inline ToolCommand colmap_pairs_matcher_command(const std::string& database, const std::string& pairs_file,
-                                                const CameraStageParams& p) {
+// The matches listed in `match_list` (pipeline/inputs/descriptor_matching.hpp's
+// raw list), verified geometrically by COLMAP. On one thread: each verification
+// thread draws its RANSAC samples from one generator across the pairs it is
+// dealt, so on more threads the inliers depend on the dealing.
+inline ToolCommand colmap_raw_matches_importer_command(const std::string& database, const std::string& match_list,
+                                                       const CameraStageParams& p) {
+  CameraStageParams one_thread = p;
+  one_thread.threads = 1;
   return cameras_detail::colmap_matcher_command("matches_importer", database,
-                                                {"--match_list_path", pairs_file, "--match_type", "pairs"}, p);
+                                                {"--match_list_path", match_list, "--match_type", "raw"}, one_thread);
 }
 
 inline ToolCommand colmap_mapper_command(const std::string& database, const std::string& image_dir,

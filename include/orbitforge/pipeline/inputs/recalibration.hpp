@@ -18,7 +18,7 @@
 // keeps the first cameras.
 //
 // recalibrate_cameras(dir, ...) writes dir/images/ (the frames as PNG),
-// dir/pairs.txt, dir/database.db, dir/sparse/ (or dir/fixed/ with the focal
+// dir/matches.txt (pipeline/inputs/descriptor_matching.hpp), dir/database.db, dir/sparse/ (or dir/fixed/ with the focal
 // held) and dir/logs/; it starts by clearing dir.
 #include <algorithm>
 #include <chrono>
@@ -36,6 +36,7 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/inputs/colmap_commands.hpp"
+#include "orbitforge/pipeline/inputs/descriptor_matching.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 
 namespace orbitforge {
@@ -175,13 +176,18 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
   // Neighbours along the orbit, around the loop: n * neighbours pairs, where
   // matching every pair would take n (n - 1) / 2.
   const int n = int(frames.size()), reach = std::min(p.neighbours, (n - 1) / 2);
-  std::string pairs;
+  std::vector<std::pair<std::string, std::string>> pairs;
   for (int i = 0; i < n; ++i)
-    for (int d = 1; d <= reach; ++d)
-      pairs += frames[std::size_t(i)].name + ' ' + frames[std::size_t((i + d) % n)].name + '\n';
-  const fs::path pairs_file = fs::path(dir) / "pairs.txt";
-  write_file_atomic(pairs_file.string(), pairs);
-  timed(colmap_pairs_matcher_command(database.string(), pairs_file.string(), cp), "matches_importer.log");
+    for (int d = 1; d <= reach; ++d) pairs.push_back({frames[std::size_t(i)].name, frames[std::size_t((i + d) % n)].name});
+  const fs::path match_list = fs::path(dir) / "matches.txt";
+  const ExactMatchSummary m = write_exact_match_list(database.string(), pairs, match_list.string(), threads);
+  if (log) {
+    char b[200];
+    std::snprintf(b, sizeof(b), "   recalibrate: exact matching: %zu matches in %zu of %zu pairs, %.1f s", m.matches,
+                  m.pairs_matched, m.pairs, m.seconds);
+    log(b);
+  }
+  timed(colmap_raw_matches_importer_command(database.string(), match_list.string(), cp), "matches_importer.log");
   std::string model;
   if (p.hold_focal) {
     const fs::path camera_only = fs::path(dir) / "given_focal", out = fs::path(dir) / "fixed";

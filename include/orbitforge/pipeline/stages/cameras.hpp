@@ -7,6 +7,9 @@
 //   cameras/colmap/images/        the SOURCE frames only (hard links): the
 //                                 folder COLMAP sees
 //   cameras/colmap/database.db    features and matches
+//   cameras/colmap/matches.txt    the matches as computed here (exact,
+//                                 pipeline/inputs/descriptor_matching.hpp), before
+//                                 COLMAP's geometric verification
 //   cameras/colmap/sparse/N/      every model the mapper wrote with its focal free
 //   cameras/colmap/fixed/focal_F/ the mapper's model with the focal held at F
 //                                 (--focal / --fov, or each candidate of the search)
@@ -46,6 +49,7 @@
 #include "orbitforge/io/image_folder.hpp"
 #include "orbitforge/metrics/image.hpp"
 #include "orbitforge/pipeline/inputs/colmap_commands.hpp"
+#include "orbitforge/pipeline/inputs/descriptor_matching.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "orbitforge/pipeline/inputs/focal_search.hpp"
 #include "orbitforge/pipeline/inputs/orbit_refinement.hpp"
@@ -118,7 +122,7 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
                                           {"sift_peak_threshold", p.sift_peak_threshold},
                                           {"sift_retry_threshold", p.sift_retry_threshold},
                                           {"sift_few_features", p.sift_few_features},
-                                          {"matcher", "sequential"},
+                                          {"matcher", "exact, sequential pairs"},
                                           {"sequential_overlap", p.sequential_overlap},
                                           {"init_min_tri_angle_deg", p.init_min_tri_angle_deg}};
   nlohmann::json settings = {{"frames", p.frames},
@@ -234,7 +238,20 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
       features["threshold"] = p.sift_retry_threshold;
     }
   }
-  timed(colmap_sequential_matcher_command(database.string(), p), "sequential_matcher.log");
+  // Matches: exact, so that a second run gives the same cameras (descriptor_matching.hpp).
+  {
+    std::vector<std::pair<std::string, std::string>> pairs;
+    for (const auto& [i, j] : sequential_match_pairs(int(r.source_names.size()), p.sequential_overlap))
+      pairs.push_back({r.source_names[std::size_t(i)], r.source_names[std::size_t(j)]});
+    const ExactMatchSummary m =
+        write_exact_match_list(database.string(), pairs, (colmap_dir / "matches.txt").string(), p.threads);
+    char b[200];
+    std::snprintf(b, sizeof(b), "   cameras: exact matching: %zu matches in %zu of %zu pairs, %.1f s", m.matches,
+                  m.pairs_matched, m.pairs, m.seconds);
+    log(b);
+  }
+  timed(colmap_raw_matches_importer_command(database.string(), (colmap_dir / "matches.txt").string(), p),
+        "matches_importer.log");
   FocalChoice choice = map_source_frames(colmap_dir.string(), colmap_images.string(), r.source_names, p, timed);
   const std::string best = choice.model_dir;
   fs::create_directories(model_dir);
