@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <vector>
