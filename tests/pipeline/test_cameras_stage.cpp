@@ -391,6 +391,11 @@ TEST_CASE("cameras stage: sunflower's source frames alone give the all-frame mod
   const nlohmann::json& features = estimate.at("colmap").at("features");
   CHECK(features.at("median_per_frame_at_colmap_default").get<double>() < p.sift_few_features);
   CHECK(features.at("threshold").get<double>() == p.sift_retry_threshold);
+  // Every one of the 270 sequential pairs of 33 frames was matched.
+  const nlohmann::json& matches = estimate.at("colmap").at("matches");
+  CHECK(matches.at("pairs").get<int>() == 270);
+  CHECK(matches.at("pairs_matched").get<int>() == 270);
+  CHECK(matches.at("matches_before_verification").get<int>() > 270 * 15);
 
   const std::string user_model = (t.path() / "out" / "cameras" / "sparse" / "0").string();
   const std::string reference_model = orbitforge_test::shared_path(video + "/sparse/0");

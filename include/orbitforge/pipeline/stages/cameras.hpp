@@ -239,15 +239,15 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     }
   }
   // Matches: exact, so that a second run gives the same cameras (descriptor_matching.hpp).
+  ExactMatchSummary matched;
   {
     std::vector<std::pair<std::string, std::string>> pairs;
     for (const auto& [i, j] : sequential_match_pairs(int(r.source_names.size()), p.sequential_overlap))
       pairs.push_back({r.source_names[std::size_t(i)], r.source_names[std::size_t(j)]});
-    const ExactMatchSummary m =
-        write_exact_match_list(database.string(), pairs, (colmap_dir / "matches.txt").string(), p.threads);
+    matched = write_exact_match_list(database.string(), pairs, (colmap_dir / "matches.txt").string(), p.threads);
     char b[200];
-    std::snprintf(b, sizeof(b), "   cameras: exact matching: %zu matches in %zu of %zu pairs, %.1f s", m.matches,
-                  m.pairs_matched, m.pairs, m.seconds);
+    std::snprintf(b, sizeof(b), "   cameras: exact matching: %zu matches in %zu of %zu pairs, %.1f s", matched.matches,
+                  matched.pairs_matched, matched.pairs, matched.seconds);
     log(b);
   }
   timed(colmap_raw_matches_importer_command(database.string(), (colmap_dir / "matches.txt").string(), p),
@@ -271,6 +271,10 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
   choice.json["orbit_refinement"] = refined.json;
   choice.json["colmap"] = colmap_settings;
   choice.json["colmap"]["features"] = features;
+  choice.json["colmap"]["matches"] = {{"pairs", matched.pairs},
+                                      {"pairs_matched", matched.pairs_matched},
+                                      {"matches_before_verification", matched.matches},
+                                      {"seconds", matched.seconds}};
   write_file_atomic((stage_dir / "estimate.json").string(), choice.json.dump(1) + "\n");
   for (const auto& [id, im] : refined.model.images) r.registered_names.push_back(im.name);
   std::sort(r.registered_names.begin(), r.registered_names.end());
