@@ -174,9 +174,9 @@ inline ToolCommand colmap_sequential_matcher_command(const std::string& database
 }
 
 // The matches listed in `match_list` (pipeline/inputs/descriptor_matching.hpp's
-// raw list), verified geometrically by COLMAP. On one thread: each verification
-// thread draws its RANSAC samples from one generator across the pairs it is
-// dealt, so on more threads the inliers depend on the dealing.
+// raw list), verified geometrically by COLMAP. On one thread, repeated imports
+// keep the same inliers; on two they differed from a one-thread import (each
+// thread's RANSAC draws seem to follow the pairs it is dealt).
 inline ToolCommand colmap_raw_matches_importer_command(const std::string& database, const std::string& match_list,
                                                        const CameraStageParams& p) {
   CameraStageParams one_thread = p;

@@ -3,9 +3,9 @@
 // the "raw" match list COLMAP's matches_importer reads (its geometric
 // verification and the mapper then run as before).
 //
-// Why not COLMAP's own matcher: its CPU matcher searches approximate nearest
-// neighbours in randomised trees, so two runs on one database give match
-// tables that differ by a match or two in some pairs, and the mapper turns that
+// Why not COLMAP's own matcher: two runs of its CPU matcher on one database
+// (one thread, a fixed seed) gave match tables that differ by a match or two in
+// some pairs (its nearest-neighbour search is approximate), and the mapper turns that
 // into about 1 % of focal length (docs/cameras.md). Exact matching makes the
 // cameras stage give the same cameras on every run, so settings can be
 // compared and figures repeated.
