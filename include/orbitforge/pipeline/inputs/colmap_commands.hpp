@@ -174,9 +174,9 @@ inline ToolCommand colmap_sequential_matcher_command(const std::string& database
 }
 
 // The matches listed in `match_list` (pipeline/inputs/descriptor_matching.hpp's
-// raw list), verified geometrically by COLMAP. On one thread, repeated imports
-// keep the same inliers; on two they differed from a one-thread import (each
-// thread's RANSAC draws seem to follow the pairs it is dealt).
+// raw list), verified geometrically by COLMAP. On one thread as a precaution:
+// COLMAP draws RANSAC samples per thread (repeated imports kept the same
+// inliers on one and on two threads alike; docs/cameras.md).
 inline ToolCommand colmap_raw_matches_importer_command(const std::string& database, const std::string& match_list,
                                                        const CameraStageParams& p) {
   CameraStageParams one_thread = p;
