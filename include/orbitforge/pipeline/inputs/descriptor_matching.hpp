@@ -23,6 +23,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <map>
 #include <string>
 #include <utility>
@@ -153,6 +154,14 @@ inline std::string raw_match_list(const std::vector<ColmapDatabaseImage>& images
 struct ExactMatchSummary {
   std::size_t pairs = 0, pairs_matched = 0, matches = 0;
   double seconds = 0;
+
+  // One progress line: "exact matching: M matches in P of N pairs, S s".
+  std::string text() const {
+    char b[160];
+    std::snprintf(b, sizeof(b), "exact matching: %zu matches in %zu of %zu pairs, %.1f s", matches, pairs_matched,
+                  pairs, seconds);
+    return b;
+  }
 };
 
 // Reads the descriptors of `database`, matches the pairs of image names listed

@@ -181,12 +181,7 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
     for (int d = 1; d <= reach; ++d) pairs.push_back({frames[std::size_t(i)].name, frames[std::size_t((i + d) % n)].name});
   const fs::path match_list = fs::path(dir) / "matches.txt";
   const ExactMatchSummary m = write_exact_match_list(database.string(), pairs, match_list.string(), threads);
-  if (log) {
-    char b[200];
-    std::snprintf(b, sizeof(b), "   recalibrate: exact matching: %zu matches in %zu of %zu pairs, %.1f s", m.matches,
-                  m.pairs_matched, m.pairs, m.seconds);
-    log(b);
-  }
+  if (log) log("   recalibrate: " + m.text());
   timed(colmap_raw_matches_importer_command(database.string(), match_list.string(), cp), "matches_importer.log");
   std::string model;
   if (p.hold_focal) {

@@ -245,10 +245,7 @@ inline CameraStageResult stage_cameras(const std::string& out, const CameraStage
     for (const auto& [i, j] : sequential_match_pairs(int(r.source_names.size()), p.sequential_overlap))
       pairs.push_back({r.source_names[std::size_t(i)], r.source_names[std::size_t(j)]});
     matched = write_exact_match_list(database.string(), pairs, (colmap_dir / "matches.txt").string(), p.threads);
-    char b[200];
-    std::snprintf(b, sizeof(b), "   cameras: exact matching: %zu matches in %zu of %zu pairs, %.1f s", matched.matches,
-                  matched.pairs_matched, matched.pairs, matched.seconds);
-    log(b);
+    log("   cameras: " + matched.text());
   }
   timed(colmap_raw_matches_importer_command(database.string(), (colmap_dir / "matches.txt").string(), p),
         "matches_importer.log");
