@@ -191,6 +191,10 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
   add_setting_flag(app, "--g1-provider-lens", p.g1_source_lens, false,
                    "G1 gives the completion frames the lens their provider gave them")
       ->group(method);
+  app.add_option("--g1-refine-completion", p.g1_refine_completion_at,
+                 "fit each completion frame's camera to its image after this fraction of G1's iterations (0: off)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->group(method);
   app.add_option("--g1-source-repeats", p.g1_source_repeats, "sampling weight of G1's source frames")
       ->transform(at_least(1))
       ->group(method);

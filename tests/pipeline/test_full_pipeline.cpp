@@ -11,6 +11,8 @@
 #include <fstream>
 #include <set>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "support/data.hpp"
@@ -889,4 +891,63 @@ TEST_CASE("pipeline: after the recalibrate stage G1 trains at its cameras and le
   CHECK(run.source_camera(0, false).t.isApprox(in.cameras[0].camera.t));  // ... R0 at G0's
   CHECK(run.completion_camera(canonical, 64, 48, true).intrinsics.fx == 104);
   CHECK(run.completion_camera(canonical, 64, 48, false).intrinsics.fx == 100);
+}
+
+// PipelineParams::g1_refine_completion_at: G1 fits its completion frames'
+// cameras once, part way, writes them (g1/completion_cameras.json) and reports
+// the fit; interrupted after the fit, it resumes on the fitted cameras and ends
+// as the run that was not interrupted.
+TEST_CASE("pipeline: G1 fits its completion cameras part way and resumes with them", "[pipeline][resume]") {
+  const fs::path& ref = oracle_run();
+  PipelineParams p = oracle_params();
+  p.compare_g1_paper = p.oracle_bound = false;
+  p.g1_refine_completion_at = 0.5;
+  const int fit_at = (p.iters_g1 + 1) / 2;
+
+  const fs::path dir = scratch().path() / "fit_completion";
+  copy_run(ref, dir);
+  PipelineRun<float> state;
+  std::vector<std::string> log;
+  state.log = [&log](const std::string& line) { log.push_back(line); };
+  const auto r = run_pipeline(tiny_input_data(), p, dir.string(), nullptr, &state);
+  CHECK(std::find(state.ran.begin(), state.ran.end(), "g1") != state.ran.end());
+  const auto fc = parse_file(dir / "g1" / "completion_cameras.json");
+  CHECK(fc.at("iteration") == fit_at);
+  const int fitted = fc.at("fit").at("frames");
+  // Every completion frame G1 trains on, and nothing else (frames.json: "source ..." names G0's frames).
+  int completion_frames = 0;
+  for (const auto& e : parse_file(dir / "g1" / "frames.json").at("frames"))
+    if (e.at("name").get<std::string>().rfind("source ", 0) != 0) ++completion_frames;
+  CHECK(fitted > 0);
+  CHECK(fitted == completion_frames);
+  CHECK(int(fc.at("frames").size()) == fitted);
+  CHECK(r.at("cameras").at("g1_completion_fit").at("fit") == fc.at("fit"));
+  CHECK_FALSE(r.at("cameras").at("g1_completion_fit").contains("frames"));
+  bool said = false;
+  for (const auto& line : log) said = said || line.find("completion cameras fitted to their images") != std::string::npos;
+  CHECK(said);
+
+  // Interrupted between the first partial checkpoint after the fit and the next.
+  const fs::path cut = scratch().path() / "fit_completion_cut";
+  copy_run(ref, cut);
+  PipelineParams q = p;
+  q.checkpoint_every = kQuick ? 20 : 100;
+  const int stop_at = (fit_at / q.checkpoint_every + 1) * q.checkpoint_every + q.checkpoint_every / 2;
+  REQUIRE(stop_at < q.iters_g1);
+  q.on_iteration = [stop_at](const std::string& label, int it) {
+    if (label == "G1" && it == stop_at) throw std::runtime_error("interrupted");
+  };
+  REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), q, cut.string()), "interrupted");
+  REQUIRE(fs::exists(cut / "g1" / "partial.bin"));
+  q.on_iteration = nullptr;
+  PipelineRun<float> resumed;
+  std::vector<std::string> log2;
+  resumed.log = [&log2](const std::string& line) { log2.push_back(line); };
+  run_pipeline(tiny_input_data(), q, cut.string(), nullptr, &resumed);
+  bool reused = false;
+  for (const auto& line : log2) reused = reused || line.find("completion cameras as fitted at iteration") != std::string::npos;
+  CHECK(reused);
+  CHECK(read_file_bytes((cut / "g1" / "completion_cameras.json").string()) ==
+        read_file_bytes((dir / "g1" / "completion_cameras.json").string()));
+  CHECK(read_file_bytes((cut / "final.ply").string()) == read_file_bytes((dir / "final.ply").string()));
 }

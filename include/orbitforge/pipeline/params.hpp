@@ -90,6 +90,13 @@ struct PipelineParams {
   // G1's cameras on the user's path: COLMAP again on the source frames and the
   // completion together (stages/recalibrate.hpp).
   RecalibrateParams recalibrate;
+  // G1 turns and zooms each completion frame's camera to fit its image
+  // (metrics/view_alignment.hpp, G1's scene of that moment held fixed) once,
+  // after this fraction of its iterations; 0: never. A completion frame lands
+  // a degree or two from the camera it was requested at (and the oracle's
+  // frames come from another estimate), which G1 would otherwise learn as
+  // blur at the seams.
+  double g1_refine_completion_at = 0;
   int g1_source_repeats = 1;        // sampling weights (TrainFrame::repeats) of source frames ...
   int g1_completion_repeats = 1;    // ... and of completion frames
   // Comparisons for audits (each one more reconstruction; not part of the method):

@@ -78,11 +78,14 @@ inline nlohmann::json recorded_timing(const std::string& path) {
 // Trains `frames` from `init` (resuming when it can), saves dir/checkpoint.bin
 // and dir/training.json (training_record.hpp), and returns the MedianGS bake
 // (the trained scene itself for static training, or when training ended within
-// the deformation warm-up).
+// the deformation warm-up). `after_step` runs after every iteration and once
+// after resuming; it may move the cameras of `frames` (the trainer holds them
+// by reference) if it tells the trainer (Trainer::cameras_changed).
 template <class Scalar>
 GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames,
                                            GaussianScene<Scalar> init, const TrainParams& tp, const std::string& dir,
-                                           const std::string& key, const std::string& label) {
+                                           const std::string& key, const std::string& label,
+                                           const std::function<void(Trainer<Scalar>&)>& after_step = {}) {
   namespace fs = std::filesystem;
   using reconstruction_detail::try_resume;
   const PipelineParams& p = run.params;
@@ -95,6 +98,7 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
   } else if (try_resume(trainer, partial, key, label, run.log)) {
     run.log(label + ": resuming at iteration " + std::to_string(trainer.iteration()));
   }
+  if (after_step) after_step(trainer);  // once where training resumed, too
   const bool trained_now = !trainer.finished();
   bool floor_said = false;
   TrainingTimes times;
@@ -121,6 +125,7 @@ GaussianScene<Scalar> reconstruct_and_bake(PipelineRun<Scalar>& run, const std::
       write_file_atomic(partial + ".key", key);
     }
     if (p.on_iteration) p.on_iteration(label, pr.iteration);
+    if (after_step) after_step(trainer);
   }
   if (trained_now) {
     trainer.save_checkpoint(final_ckpt);

@@ -57,6 +57,8 @@ class CoarseFrames {
     return levels[std::size_t(level - 1)];
   }
 
+  void clear() { levels_.clear(); }  // the frames changed: each level is built again on use
+
   static TrainFrame<Scalar> halved(const TrainFrame<Scalar>& above) {
     TrainFrame<Scalar> f = above;
     const int w = std::max(1, above.image.width / 2), h = std::max(1, above.image.height / 2);

@@ -130,6 +130,10 @@ class Trainer {
   // The image level iteration `it` trains at (coarse_to_fine.hpp; full size up to the still-scene check).
   int image_level_at(int it) const { return orbitforge::image_level_at(params_, it, still_check_iteration()); }
 
+  // The caller moved cameras of the frames it gave (their images and count
+  // unchanged): the downsampled copies are made again from them.
+  void cameras_changed() { coarse_.clear(); }
+
   // Trains until iteration `until` (at most params.iterations; earlier when the
   // plateau stop ends training), calling `progress` after every iteration.
   void train(int until, const Progress& progress = {}) {

@@ -19,7 +19,10 @@
 // that no held-out frame was trained on.
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -27,6 +30,7 @@
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/io/spz.hpp"
+#include "orbitforge/pipeline/completion/camera_fit.hpp"
 #include "orbitforge/pipeline/completion/provider.hpp"
 #include "orbitforge/pipeline/reconstruction.hpp"
 #include "orbitforge/pipeline/run_state.hpp"
@@ -68,14 +72,15 @@ void add_source_frames(const PipelineRun<Scalar>& run, std::vector<TrainFrame<Sc
 template <class Scalar>
 GaussianScene<Scalar> train_second(PipelineRun<Scalar>& run, const std::vector<TrainFrame<Scalar>>& frames,
                                    bool deformable, const std::string& dir, const std::string& key,
-                                   const std::string& label) {
+                                   const std::string& label,
+                                   const std::function<void(Trainer<Scalar>&)>& after_step = {}) {
   namespace fs = std::filesystem;
   const auto& p = run.params;
   GaussianScene<Scalar> init = p.g1_from_gmed0 ? run.read_scene((fs::path(run.out) / "gmed0.ply").string())
                                                : initial_scene(run, frames);
   TrainParams tp = run.train_params(p.iters_g1, deformable);
   tp.max_sh_degree = std::max(tp.max_sh_degree, init.sh_degree);
-  return reconstruct_and_bake(run, frames, std::move(init), tp, dir, key, label);
+  return reconstruct_and_bake(run, frames, std::move(init), tp, dir, key, label, after_step);
 }
 
 // What a training run sees, names aside: every frame's pixels, camera, time code
@@ -104,7 +109,56 @@ nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string
           {"source_repeats", p.g1_source_repeats},
           {"completion_repeats", p.g1_completion_repeats},
           {"completion_lens", p.g1_source_lens ? "source" : "provider"},
+          {"refine_completion_at", p.g1_refine_completion_at},
           {"threads", p.threads}};
+}
+
+// G1's cameras once the completion's have been fitted (PipelineRun::g1_cameras):
+// the source cameras as they were, and `completion` by index into V_hat.
+template <class Scalar>
+G1Cameras<Scalar> with_completion_cameras(const PipelineRun<Scalar>& run,
+                                          std::map<int, Camera<Scalar>> completion) {
+  G1Cameras<Scalar> g;
+  g.lens = run.g1_cameras ? run.g1_cameras->lens : run.fit.cameras.front().intrinsics;
+  for (int t = 0; t < int(run.fit.source.size()); ++t) {
+    const int idx = run.input_index_of_source(t);
+    g.source[idx] = run.source_camera(idx, true);
+  }
+  g.completion = std::move(completion);
+  return g;
+}
+
+// g1/completion_cameras.json: the fit's figures and every completion frame's
+// camera after it, under G1's stage key, so that a resumed G1 trains on the
+// same cameras and the report scores in them.
+template <class Scalar>
+void write_completion_cameras(const PipelineRun<Scalar>& run, const std::string& path, const std::string& key,
+                              int iteration, const FrameCameraFit& fit, const std::map<int, Camera<Scalar>>& cams) {
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& [i, cam] : cams) {
+    nlohmann::json e = orbit_file_detail::camera_json(i, 0.0, run.input->frame.to_user_for_file(cam));
+    e.erase("azimuth_deg");
+    e["vhat_index"] = i;
+    list.push_back(e);
+  }
+  const nlohmann::json j = {{"key", key}, {"iteration", iteration}, {"fit", fit.json()}, {"frames", list}};
+  write_file_atomic(path, j.dump(1) + "\n");
+}
+
+// The cameras of a completion_cameras.json written under `key`; false when
+// there is none (or it is another run's).
+template <class Scalar>
+bool read_completion_cameras(const PipelineRun<Scalar>& run, const std::string& path, const std::string& key,
+                             std::map<int, Camera<Scalar>>& cams) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return false;
+  const nlohmann::json j = nlohmann::json::parse(read_file_bytes(path));
+  if (j.value("key", std::string()) != key) return false;
+  cams.clear();
+  for (const auto& e : j.at("frames"))
+    cams[e.at("vhat_index").get<int>()] =
+        run.input->frame.to_normalised(cameras_from_json<double>(e, path).front()).template cast<Scalar>();
+  return true;
 }
 
 }  // namespace g1_detail
@@ -112,10 +166,11 @@ nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string
 // The frames G1 trains on, from V_hat (vhat.json) and the input, per `data`.
 template <class Scalar>
 std::vector<TrainFrame<Scalar>> g1_frames(const PipelineRun<Scalar>& run, std::vector<VhatFrame<Scalar>> vhat,
-                                          G1Data data) {
+                                          G1Data data, std::vector<int>* vhat_index = nullptr) {
   const auto& p = run.params;
   std::vector<TrainFrame<Scalar>> frames;
   if (data == G1Data::source) g1_detail::add_source_frames(run, frames, p.g1_source_repeats);
+  if (vhat_index) vhat_index->assign(frames.size(), -1);
   for (std::size_t i = 0; i < vhat.size(); ++i) {
     auto& v = vhat[i];
     if (v.from_r0 && data == G1Data::source && !p.g1_arc_renders) continue;
@@ -126,6 +181,7 @@ std::vector<TrainFrame<Scalar>> g1_frames(const PipelineRun<Scalar>& run, std::v
       if (it != run.g1_cameras->completion.end()) cam = it->second;
     }
     frames.push_back(g1_detail::orbit_frame(run, std::move(v.image), cam, v.position, v.origin, repeats));
+    if (vhat_index) vhat_index->push_back(v.from_r0 ? -1 : int(i));
   }
   ensure(!frames.empty(), "pipeline: G1 has no training frames");
   return frames;
@@ -149,15 +205,54 @@ void stage_g1(PipelineRun<Scalar>& run) {
   std::vector<std::string> outputs = {"final.ply", "final.spz"};
   if (!reuse) outputs.insert(outputs.end(), {"g1/checkpoint.bin", "g1/training.json", "g1/frames.json"});
   for (const auto& f : orbit_view_files(run, "R1")) outputs.push_back(f);
-  if (run.stage_current("g1", key, outputs)) return;
+  // The completion's cameras fitted part way (PipelineParams::g1_refine_completion_at;
+  // a deformable G1 is not fitted).
+  const int fit_at = reuse || p.g1_deformable ? 0 : int(p.g1_refine_completion_at * p.iters_g1 + 0.5);
+  const std::string fit_file = (out / "g1" / "completion_cameras.json").string();
+  if (fit_at > 0) outputs.push_back("g1/completion_cameras.json");
+  if (run.stage_current("g1", key, outputs)) {
+    std::map<int, Camera<Scalar>> cams;
+    if (fit_at > 0 && g1_detail::read_completion_cameras(run, fit_file, key, cams))
+      run.g1_cameras = g1_detail::with_completion_cameras(run, std::move(cams));
+    return;
+  }
   GaussianScene<Scalar> final_scene;
   if (reuse) {
     final_scene = run.read_scene((out / "gmed0.ply").string());
   } else {
-    const std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data);
+    std::vector<int> vhat_index;
+    std::vector<TrainFrame<Scalar>> frames = g1_frames(run, std::move(vhat), p.g1_data, &vhat_index);
     fs::create_directories(out / "g1");
     write_frame_list((out / "g1" / "frames.json").string(), frames);
-    final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1");
+    bool fitted = false;
+    const std::function<void(Trainer<Scalar>&)> fit_completion = [&](Trainer<Scalar>& trainer) {
+      if (!fit_at || fitted || trainer.iteration() < fit_at) return;
+      fitted = true;
+      std::map<int, Camera<Scalar>> cams;
+      if (g1_detail::read_completion_cameras(run, fit_file, key, cams)) {
+        for (std::size_t k = 0; k < frames.size(); ++k)
+          if (vhat_index[k] >= 0) frames[k].camera = cams.at(vhat_index[k]);
+        run.log("G1: completion cameras as fitted at iteration " + std::to_string(fit_at));
+      } else {
+        std::vector<bool> movable(frames.size());
+        for (std::size_t k = 0; k < frames.size(); ++k) movable[k] = vhat_index[k] >= 0;
+        Renderer<Scalar> r = run.renderer();
+        const FrameCameraFit fit = fit_frame_cameras(r, trainer.scene(), frames, movable);
+        for (std::size_t k = 0; k < frames.size(); ++k)
+          if (vhat_index[k] >= 0) cams[vhat_index[k]] = frames[k].camera;
+        g1_detail::write_completion_cameras(run, fit_file, key, fit_at, fit, cams);
+        char line[200];
+        std::snprintf(line, sizeof(line),
+                      "G1: %d of %d completion cameras fitted to their images, turned %.2f deg on average (at "
+                      "most %.2f), zoomed %.2f %%",
+                      fit.moved, fit.frames, fit.turn_mean_deg, fit.turn_max_deg, 100 * fit.zoom_change_mean);
+        run.log(line);
+      }
+      run.g1_cameras = g1_detail::with_completion_cameras(run, std::move(cams));
+      trainer.cameras_changed();
+    };
+    final_scene = g1_detail::train_second(run, frames, p.g1_deformable, (out / "g1").string(), key, "G1",
+                                          fit_completion);
   }
   run.write_scene((out / "final.ply").string(), final_scene);
   write_spz((out / "final.spz").string(), run.input->frame.to_user(final_scene.template cast<double>()));

@@ -352,6 +352,14 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
     }
     r["cameras"]["recalibrated"] = rc;
   }
+  // G1's completion cameras fitted to their images (stages/g1.hpp).
+  if (recorded_output(run.out, "g1", "g1/completion_cameras.json")) {
+    nlohmann::json fc = nlohmann::json::parse(read_file_bytes((out / "g1" / "completion_cameras.json").string()));
+    fc.erase("frames");
+    fc.erase("key");
+    if (in_g1) fc["reference_alignment"] = camera_alignment_json(in_g1->global);
+    r["cameras"]["g1_completion_fit"] = fc;
+  }
   // The frame the run worked in; its files are in the model's own (run_state.hpp).
   if (!in.frame.is_identity())
     r["frame"] = {{"origin", {in.frame.origin[0], in.frame.origin[1], in.frame.origin[2]}},
