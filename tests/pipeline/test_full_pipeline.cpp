@@ -916,7 +916,8 @@ TEST_CASE("pipeline: G1 fits its completion cameras part way and resumes with th
   const int fitted = fc.at("fit").at("frames");
   // Every completion frame G1 trains on, and nothing else (frames.json: "source ..." names G0's frames).
   int completion_frames = 0;
-  for (const auto& e : parse_file(dir / "g1" / "frames.json").at("frames"))
+  const auto g1_frames = parse_file(dir / "g1" / "frames.json");  // named: a range-for would not keep a temporary alive
+  for (const auto& e : g1_frames.at("frames"))
     if (e.at("name").get<std::string>().rfind("source ", 0) != 0) ++completion_frames;
   CHECK(fitted > 0);
   CHECK(fitted == completion_frames);
