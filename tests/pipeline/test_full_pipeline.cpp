@@ -941,6 +941,27 @@ TEST_CASE("pipeline: G1 fits its completion cameras part way and resumes with th
   REQUIRE_THROWS_WITH(run_pipeline(tiny_input_data(), q, cut.string()), "interrupted");
   REQUIRE(fs::exists(cut / "g1" / "partial.bin"));
   q.on_iteration = nullptr;
+
+  // The same interrupted run with its fitted cameras' file damaged: it is not
+  // trusted; the fit runs again where training resumes.
+  const fs::path damaged = scratch().path() / "fit_completion_damaged";
+  copy_run(cut, damaged);
+  {
+    const std::string f = (damaged / "g1" / "completion_cameras.json").string();
+    const std::string bytes = read_file_bytes(f);
+    std::ofstream(f, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  }
+  std::vector<std::string> log3;
+  PipelineRun<float> refit;
+  refit.log = [&log3](const std::string& line) { log3.push_back(line); };
+  run_pipeline(tiny_input_data(), q, damaged.string(), nullptr, &refit);
+  bool distrusted = false;
+  for (const auto& line : log3) distrusted = distrusted || line.find("not usable") != std::string::npos;
+  CHECK(distrusted);
+  const auto fc3 = parse_file(damaged / "g1" / "completion_cameras.json");
+  CHECK(fc3.at("iteration") == (fit_at / q.checkpoint_every + 1) * q.checkpoint_every);
+  CHECK(fc3.at("fit").at("frames") == fitted);
+
   PipelineRun<float> resumed;
   std::vector<std::string> log2;
   resumed.log = [&log2](const std::string& line) { log2.push_back(line); };

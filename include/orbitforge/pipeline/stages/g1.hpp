@@ -145,19 +145,41 @@ void write_completion_cameras(const PipelineRun<Scalar>& run, const std::string&
   write_file_atomic(path, j.dump(1) + "\n");
 }
 
-// The cameras of a completion_cameras.json written under `key`; false when
-// there is none (or it is another run's).
+// V_hat's completion frames (not R0's renders) by index: the frames the fit moves.
+template <class Scalar>
+std::vector<int> completion_indices(const std::vector<VhatFrame<Scalar>>& vhat) {
+  std::vector<int> idx;
+  for (std::size_t i = 0; i < vhat.size(); ++i)
+    if (!vhat[i].from_r0) idx.push_back(int(i));
+  return idx;
+}
+
+// The cameras of a completion_cameras.json written under `key`, one for each
+// V_hat index in `expected`; false (the fit runs again) when there is none, it
+// is another run's, or it does not parse or name exactly those frames.
 template <class Scalar>
 bool read_completion_cameras(const PipelineRun<Scalar>& run, const std::string& path, const std::string& key,
-                             std::map<int, Camera<Scalar>>& cams) {
+                             const std::vector<int>& expected, std::map<int, Camera<Scalar>>& cams) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) return false;
-  const nlohmann::json j = nlohmann::json::parse(read_file_bytes(path));
-  if (j.value("key", std::string()) != key) return false;
-  cams.clear();
-  for (const auto& e : j.at("frames"))
-    cams[e.at("vhat_index").get<int>()] =
-        run.input->frame.to_normalised(cameras_from_json<double>(e, path).front()).template cast<Scalar>();
+  std::map<int, Camera<Scalar>> read;
+  try {
+    const nlohmann::json j = nlohmann::json::parse(read_file_bytes(path));
+    if (j.value("key", std::string()) != key) return false;
+    for (const auto& e : j.at("frames"))
+      read[e.at("vhat_index").get<int>()] =
+          run.input->frame.to_normalised(cameras_from_json<double>(e, path).front()).template cast<Scalar>();
+  } catch (const std::exception& e) {
+    run.log(std::string("G1: ") + path + " not usable (" + e.what() + "); fitting again");
+    return false;
+  }
+  std::vector<int> named;
+  for (const auto& kv : read) named.push_back(kv.first);
+  if (named != expected) {
+    run.log("G1: " + path + " names other completion frames than this run's; fitting again");
+    return false;
+  }
+  cams = std::move(read);
   return true;
 }
 
@@ -210,9 +232,10 @@ void stage_g1(PipelineRun<Scalar>& run) {
   const int fit_at = reuse || p.g1_deformable ? 0 : int(p.g1_refine_completion_at * p.iters_g1 + 0.5);
   const std::string fit_file = (out / "g1" / "completion_cameras.json").string();
   if (fit_at > 0) outputs.push_back("g1/completion_cameras.json");
+  const std::vector<int> completion = g1_detail::completion_indices(vhat);
   if (run.stage_current("g1", key, outputs)) {
     std::map<int, Camera<Scalar>> cams;
-    if (fit_at > 0 && g1_detail::read_completion_cameras(run, fit_file, key, cams))
+    if (fit_at > 0 && g1_detail::read_completion_cameras(run, fit_file, key, completion, cams))
       run.g1_cameras = g1_detail::with_completion_cameras(run, std::move(cams));
     return;
   }
@@ -229,7 +252,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
       if (!fit_at || fitted || trainer.iteration() < fit_at) return;
       fitted = true;
       std::map<int, Camera<Scalar>> cams;
-      if (g1_detail::read_completion_cameras(run, fit_file, key, cams)) {
+      if (g1_detail::read_completion_cameras(run, fit_file, key, completion, cams)) {
         for (std::size_t k = 0; k < frames.size(); ++k)
           if (vhat_index[k] >= 0) frames[k].camera = cams.at(vhat_index[k]);
         run.log("G1: completion cameras as fitted at iteration " + std::to_string(fit_at));
@@ -240,7 +263,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
         const FrameCameraFit fit = fit_frame_cameras(r, trainer.scene(), frames, movable);
         for (std::size_t k = 0; k < frames.size(); ++k)
           if (vhat_index[k] >= 0) cams[vhat_index[k]] = frames[k].camera;
-        g1_detail::write_completion_cameras(run, fit_file, key, fit_at, fit, cams);
+        g1_detail::write_completion_cameras(run, fit_file, key, trainer.iteration(), fit, cams);
         char line[200];
         std::snprintf(line, sizeof(line),
                       "G1: %d of %d completion cameras fitted to their images, turned %.2f deg on average (at "
