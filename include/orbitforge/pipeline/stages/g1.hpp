@@ -260,15 +260,18 @@ void stage_g1(PipelineRun<Scalar>& run) {
         std::vector<bool> movable(frames.size());
         for (std::size_t k = 0; k < frames.size(); ++k) movable[k] = vhat_index[k] >= 0;
         Renderer<Scalar> r = run.renderer();
+        const auto fit_t0 = std::chrono::steady_clock::now();
         const FrameCameraFit fit = fit_frame_cameras(r, trainer.scene(), frames, movable);
+        const double fit_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - fit_t0).count();
         for (std::size_t k = 0; k < frames.size(); ++k)
           if (vhat_index[k] >= 0) cams[vhat_index[k]] = frames[k].camera;
         g1_detail::write_completion_cameras(run, fit_file, key, trainer.iteration(), fit, cams);
         char line[200];
         std::snprintf(line, sizeof(line),
                       "G1: %d of %d completion cameras fitted to their images, turned %.2f deg on average (at "
-                      "most %.2f), zoomed %.2f %%",
-                      fit.moved, fit.frames, fit.turn_mean_deg, fit.turn_max_deg, 100 * fit.zoom_change_mean);
+                      "most %.2f), zoomed %.2f %%, in %.1f s",
+                      fit.moved, fit.frames, fit.turn_mean_deg, fit.turn_max_deg, 100 * fit.zoom_change_mean,
+                      fit_seconds);
         run.log(line);
       }
       run.g1_cameras = g1_detail::with_completion_cameras(run, std::move(cams));
