@@ -180,6 +180,19 @@ std::vector<Camera<Scalar>> cameras_from_json(const nlohmann::json& j, const std
   return out;
 }
 
+// One training frame's camera as a file entry ({"index", width, ..., R, t}, in
+// the model's frame) and back: the files that record the cameras G1 trains on.
+template <class Scalar>
+nlohmann::json frame_camera_json(const SceneFrame& frame, int index, const Camera<Scalar>& cam) {
+  nlohmann::json e = orbit_file_detail::camera_json(index, 0.0, frame.to_user_for_file(cam));
+  e.erase("azimuth_deg");
+  return e;
+}
+template <class Scalar>
+Camera<Scalar> frame_camera_from_json(const SceneFrame& frame, const nlohmann::json& e, const std::string& file) {
+  return frame.to_normalised(cameras_from_json<double>(e, file).front()).template cast<Scalar>();
+}
+
 template <class Scalar>
 std::vector<Camera<Scalar>> read_cameras_json(const std::string& path) {
   const std::string text = read_file_bytes(path);

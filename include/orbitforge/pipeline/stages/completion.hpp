@@ -55,6 +55,15 @@ std::vector<VhatFrame<Scalar>> read_vhat(const std::string& out, const std::stri
   return frames;
 }
 
+// V_hat's completion frames (not R0's renders), by index into vhat.json.
+template <class Scalar>
+std::vector<int> completion_indices(const std::vector<VhatFrame<Scalar>>& vhat) {
+  std::vector<int> idx;
+  for (std::size_t i = 0; i < vhat.size(); ++i)
+    if (!vhat[i].from_r0) idx.push_back(int(i));
+  return idx;
+}
+
 // Whether the source alone already closes the orbit: no gap bins, or the
 // source cameras pass the closed-orbit gate (A > 330 degrees, M > 0.9). Then
 // nothing needs completing and G1 is Gmed0.

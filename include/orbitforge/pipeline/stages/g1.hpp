@@ -136,22 +136,12 @@ void write_completion_cameras(const PipelineRun<Scalar>& run, const std::string&
                               int iteration, const FrameCameraFit& fit, const std::map<int, Camera<Scalar>>& cams) {
   nlohmann::json list = nlohmann::json::array();
   for (const auto& [i, cam] : cams) {
-    nlohmann::json e = orbit_file_detail::camera_json(i, 0.0, run.input->frame.to_user_for_file(cam));
-    e.erase("azimuth_deg");
+    nlohmann::json e = frame_camera_json(run.input->frame, i, cam);
     e["vhat_index"] = i;
     list.push_back(e);
   }
   const nlohmann::json j = {{"key", key}, {"iteration", iteration}, {"fit", fit.json()}, {"frames", list}};
   write_file_atomic(path, j.dump(1) + "\n");
-}
-
-// V_hat's completion frames (not R0's renders) by index: the frames the fit moves.
-template <class Scalar>
-std::vector<int> completion_indices(const std::vector<VhatFrame<Scalar>>& vhat) {
-  std::vector<int> idx;
-  for (std::size_t i = 0; i < vhat.size(); ++i)
-    if (!vhat[i].from_r0) idx.push_back(int(i));
-  return idx;
 }
 
 // The cameras of a completion_cameras.json written under `key`, one for each
@@ -167,8 +157,7 @@ bool read_completion_cameras(const PipelineRun<Scalar>& run, const std::string& 
     const nlohmann::json j = nlohmann::json::parse(read_file_bytes(path));
     if (j.value("key", std::string()) != key) return false;
     for (const auto& e : j.at("frames"))
-      read[e.at("vhat_index").get<int>()] =
-          run.input->frame.to_normalised(cameras_from_json<double>(e, path).front()).template cast<Scalar>();
+      read[e.at("vhat_index").get<int>()] = frame_camera_from_json<Scalar>(run.input->frame, e, path);
   } catch (const std::exception& e) {
     run.log(std::string("G1: ") + path + " not usable (" + e.what() + "); fitting again");
     return false;
@@ -232,7 +221,7 @@ void stage_g1(PipelineRun<Scalar>& run) {
   const int fit_at = reuse || p.g1_deformable ? 0 : int(p.g1_refine_completion_at * p.iters_g1 + 0.5);
   const std::string fit_file = (out / "g1" / "completion_cameras.json").string();
   if (fit_at > 0) outputs.push_back("g1/completion_cameras.json");
-  const std::vector<int> completion = g1_detail::completion_indices(vhat);
+  const std::vector<int> completion = completion_indices(vhat);
   if (run.stage_current("g1", key, outputs)) {
     std::map<int, Camera<Scalar>> cams;
     if (fit_at > 0 && g1_detail::read_completion_cameras(run, fit_file, key, completion, cams))

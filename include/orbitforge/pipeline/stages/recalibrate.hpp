@@ -37,8 +37,7 @@ void apply_recalibration(PipelineRun<Scalar>& run, const std::string& path) {
   if (!j.value("applied", false)) return;
   G1Cameras<Scalar> g;
   for (const auto& e : j.at("frames")) {
-    const Camera<Scalar> cam =
-        run.input->frame.to_normalised(cameras_from_json<double>(e, path).front()).template cast<Scalar>();
+    const auto cam = frame_camera_from_json<Scalar>(run.input->frame, e, path);
     if (e.at("kind") == "source")
       g.source[e.at("input_index").get<int>()] = cam;
     else
@@ -65,8 +64,7 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
   if (p.recalibrate.enabled && in.estimated_cameras) {
     // Cameras first: the frames' images are decoded only when COLMAP runs.
     vhat = read_vhat<Scalar>(run.out, "vhat.json", in.frame, &reuse, VhatImages::skip);
-    for (std::size_t i = 0; i < vhat.size(); ++i)
-      if (!vhat[i].from_r0) completion.push_back(int(i));
+    completion = completion_indices(vhat);
   }
   if (reuse || completion.empty()) {  // also when the stage is off or the cameras were given
     run.keys["recalibrate"] = run.keys.at("completion");  // G1's key as without the stage
@@ -125,8 +123,7 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
     nlohmann::json list = nlohmann::json::array();
     for (const auto& [name, cam] : r.cameras) {
       const auto& [kind, index] = what.at(name);
-      nlohmann::json e = orbit_file_detail::camera_json(index, 0.0, in.frame.to_user_for_file(cam));
-      e.erase("azimuth_deg");
+      nlohmann::json e = frame_camera_json(in.frame, index, cam);
       e["kind"] = kind;
       e[std::string(kind) == "source" ? "input_index" : "vhat_index"] = index;
       list.push_back(e);
