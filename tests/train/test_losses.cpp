@@ -127,6 +127,42 @@ TEST_CASE("ssim matches a direct full-window implementation", "[train][losses]")
   }
 }
 
+namespace {
+// row_taps<R> (taps unrolled; on AVX-512 floats, the shifted inputs taken from
+// two registers) against the runtime-radius path and a scalar sum in the same
+// order: every output the same bits, for rows shorter and longer than a vector,
+// with R padding values on each side of the row and none beyond.
+template <int R, class S>
+void check_row_taps(std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<S> w(2 * R + 1);
+  for (auto& v : w) v = S(u(rng));
+  for (std::size_t n = 1; n <= 70; ++n) {
+    std::vector<S> row(n + 2 * R);
+    for (auto& v : row) v = S(u(rng));
+    std::vector<S> fixed(n), runtime(n);
+    ssim_detail::row_taps<R>(row.data() + R, fixed.data(), n, w.data(), R);
+    ssim_detail::row_taps<0>(row.data() + R, runtime.data(), n, w.data(), R);
+    INFO("R " << R << ", n " << n << ", " << sizeof(S) * 8 << "-bit");
+    for (std::size_t i = 0; i < n; ++i) {
+      const S* c = row.data() + R + i;
+      S expect = w[R] * c[0];
+      for (int d = 1; d <= R; ++d) expect = std::fma(w[R + d], c[-d] + c[d], expect);
+      REQUIRE(fixed[i] == expect);
+      REQUIRE(runtime[i] == expect);
+    }
+  }
+}
+}  // namespace
+
+TEMPLATE_TEST_CASE("ssim's row pass sums each output in one order on every path", "[train][losses]", float,
+                   double) {
+  std::mt19937 rng(99);
+  check_row_taps<5, TestType>(rng);  // the default 11-tap window
+  check_row_taps<1, TestType>(rng);
+  check_row_taps<8, TestType>(rng);
+}
+
 TEST_CASE("ssim with other windows, and the same value whatever the rows' banding", "[train][losses]") {
   std::mt19937 rng(77);
   // Windows other than the default 11 taps take the generic filter paths.
