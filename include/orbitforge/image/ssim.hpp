@@ -37,6 +37,10 @@
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/core/simd.hpp"
 
+#if ORBITFORGE_SIMD_ENABLED && defined(__AVX512F__)
+#include <immintrin.h>
+#endif
+
 namespace orbitforge {
 
 struct SsimParams {
@@ -106,9 +110,7 @@ inline void add_pairs(__m512& acc, const __m512* wd, const At& at) {
   }
 }
 }  // namespace detail_sliding
-#endif
 
-#if ORBITFORGE_SIMD_ENABLED && defined(__AVX512F__)
 // row_taps for 16 float lanes and a radius of at most 8: the 2R + 1 shifted
 // inputs of an output vector are lanes of two neighbouring registers
 // (valignd), so each output vector loads one register instead of 2R + 1
@@ -276,7 +278,7 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
   const std::size_t padded_len = std::size_t(planes) * padded_row_stride(W, r);
   // + one cache line, to start the ring on one: with len a multiple of 16
   // values every ring row is then aligned, and the column pass's loads and the
-  // row pass's stores do not straddle lines (12 % of the loss's time at 512x512).
+  // row pass's stores do not straddle lines (docs/benchmarks.md).
   constexpr std::size_t kLine = 64 / sizeof(Scalar);
   const std::size_t need = std::size_t(ring_rows + K + 1) * len + padded_len + std::size_t(W) + kLine;
   if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
