@@ -43,7 +43,7 @@ struct PipelineFlags {
   // whether to search the focal length otherwise.
   double focal_px = 0, fov_deg = 0;
   bool focal_search = false;
-  bool recalibrate_hold_focal = false;
+  bool recalibrate_hold_focal = true;
   std::string orbit_refine = "flagged";
   double sift_peak_threshold = 0;  // 0: COLMAP's, again at 0.004 when features are few
   // A COLMAP model without 3D points: COLMAP triangulates the training frames at
@@ -255,13 +255,24 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                   f.sift_peak_threshold)
       ->check(positive())
       ->group(cameras);
-  add_setting_flag(app, "--recalibrate", p.recalibrate.enabled, true,
-                   "once the completion is back, COLMAP again on the source frames and the completion together, "
-                   "and G1 at those cameras (default: G1 at the source cameras as estimated)")
+  // --recalibrate and --recalibrate-hold-focal are the defaults; kept for old
+  // commands. Defined first so that the setting flags given with them win.
+  app.add_flag_callback("--recalibrate", [&p] { p.recalibrate.enabled = true; },
+                        "(the default; kept for old commands)")
+      ->default_function([] { return std::string("false"); })
       ->group(cameras);
-  add_setting_flag(app, "--recalibrate-hold-focal", f.recalibrate_hold_focal, true,
-                   "--recalibrate keeps the source cameras' focal length instead of estimating it again with the "
-                   "completion's frames (always so with --focal / --fov)")
+  app.add_flag_callback("--recalibrate-hold-focal", [&f] { f.recalibrate_hold_focal = true; },
+                        "(the default; kept for old commands)")
+      ->default_function([] { return std::string("false"); })
+      ->group(cameras);
+  add_setting_flag(app, "--no-recalibrate", p.recalibrate.enabled, false,
+                   "G1 at the source cameras as estimated (default: once the completion is back, COLMAP again on "
+                   "the source frames and the completion together, and G1 at those cameras where they pass the "
+                   "stage's checks)")
+      ->group(cameras);
+  add_setting_flag(app, "--recalibrate-refit-focal", f.recalibrate_hold_focal, false,
+                   "the recalibrate stage estimates the focal length again with the completion's frames (default: "
+                   "it keeps the source cameras'; always so with --focal / --fov)")
       ->group(cameras);
 }
 

@@ -92,6 +92,10 @@ TEST_CASE("protocol paper: every setting as published", "[pipeline][protocol]") 
   // [paper App. "Gaussian Splatting Reconstruction Settings"]: every reconstruction
   // deformable for its whole budget: no still-scene check.
   CHECK(t.still_check_iterations == 0);
+  // [paper Sec. "Second Reconstruction and Output"]: the completed orbit is
+  // reconstructed at the canonical cameras; re-estimating cameras from the
+  // completed video is argued against there.
+  CHECK_FALSE(p.recalibrate.enabled);
   CHECK(protocol_loads_native_size(Protocol::paper));
 }
 
@@ -107,6 +111,10 @@ TEST_CASE("protocol measured: the defaults, untouched", "[pipeline][protocol]") 
   CHECK(a.train.still_check_iterations == 500);
   CHECK(b.train.still_check_iterations == 500);
   CHECK(TrainParams{}.still_check_iterations == 0);
+  // On the user's path G1's cameras are estimated again with the completion,
+  // the lens held (docs/cameras.md).
+  CHECK(b.recalibrate.enabled);
+  CHECK(b.recalibrate.hold_focal);
   CHECK_FALSE(protocol_loads_native_size(Protocol::measured));
   CHECK(parse_protocol("paper") == Protocol::paper);
   CHECK_THROWS_WITH(parse_protocol("papers"), Catch::Contains("expected paper or measured"));

@@ -21,7 +21,8 @@
 //                         t, PyTorch's default head init, additive scale offsets,
 //                         world units; annealed time noise 0.1 / frames over 20,000
 //   G1                    deformable, on V_hat (R0 on the supported arc, the
-//                         completion on the gap), initialised like G0
+//                         completion on the gap), initialised like G0, at the
+//                         cameras the source frames gave (no recalibrate stage)
 //   MedianGS              T_m = 128
 //   completion request    sparse stride-24 source anchors only, with the paper's
 //                         negative prompt
@@ -100,6 +101,7 @@ inline void apply_protocol(PipelineParams& p, Protocol protocol) {
   p.g1_deformable = true;
   p.g1_data = G1Data::paper;
   p.g1_from_gmed0 = false;
+  p.recalibrate.enabled = false;  // G1 at the cameras the source frames gave
   p.median_samples = 128;
   p.min_densify_interval = 1;
   p.layout.anchor_stride = 24;
