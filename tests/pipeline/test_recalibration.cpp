@@ -134,8 +134,8 @@ TEST_CASE("recalibration: refitting the lens, corgi_bread's arc at a wrong focal
   REQUIRE(c.in.source.size() == 33);
   for (int i : c.far_side) REQUIRE(c.in.cameras[std::size_t(i)].valid);
 
-  const RecalibrateParams p;
-  REQUIRE_FALSE(p.hold_focal);
+  RecalibrateParams p;
+  p.hold_focal = false;  // --recalibrate-refit-focal (the default holds the lens)
   const Recalibration<double> r = c.recalibrate(p);
   CHECK(r.focal_first_px == Approx(first_factor * c.reference_focal));
   // Back within 2.5 % of the all-frame model's, where the first cameras were 4 % off.
@@ -174,7 +174,7 @@ TEST_CASE("recalibration: with the lens held, the focal length stays and the far
   if (!have_video_and_colmap()) return;
   const FarSideCase c(1.0);
   RecalibrateParams p;
-  p.hold_focal = true;
+  REQUIRE(p.hold_focal);  // the default
   const Recalibration<double> r = c.recalibrate(p);
   CHECK(r.focal_px == Approx(c.reference_focal).epsilon(1e-6));  // held: COLMAP did not move it
   CHECK(r.alignment.centre_rms_relative < 0.02);
