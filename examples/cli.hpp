@@ -225,6 +225,18 @@ CLI::Option* add_setting_flag(CLI::App& app, const std::string& name, T& target,
   return o;
 }
 
+// A flag that asks for what is now the default, kept so that old commands still
+// parse: it sets `target` to `value`, and the settings file records it as not
+// given (the setting flag that turns the default off records the run's value).
+// Define it before that flag, so that the setting flag given with it wins.
+template <class T>
+CLI::Option* add_old_default_flag(CLI::App& app, const std::string& name, T& target, T value) {
+  CLI::Option* o =
+      app.add_flag_callback(name, [&target, value] { target = value; }, "(the default; kept for old commands)");
+  o->default_function([] { return std::string("false"); });
+  return o;
+}
+
 // The command line as a shell would take it back: each argument quoted where needed.
 inline std::string shell_command(int argc, const char* const* argv) {
   std::string cmd;

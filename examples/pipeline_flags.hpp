@@ -213,12 +213,7 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                    "also train the oracle bound (a comparison; recorded inputs only)")
       ->group(method);
   add_setting_flag(app, "--quiet", p.progress, false, "no progress lines")->group(method);
-  // --no-static-diagnostics is the default; kept for old commands. Defined first
-  // so that --static-diagnostics given with it wins.
-  app.add_flag_callback("--no-static-diagnostics", [&p] { p.static_proxy_diagnostics = false; },
-                        "(the default; kept for old commands)")
-      ->default_function([] { return std::string("false"); })
-      ->group(method);
+  add_old_default_flag(app, "--no-static-diagnostics", p.static_proxy_diagnostics, false)->group(method);
   add_setting_flag(app, "--static-diagnostics", p.static_proxy_diagnostics, true,
                    "also render the static-proxy comparison (not part of the method)")
       ->group(method);
@@ -255,16 +250,8 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
                   f.sift_peak_threshold)
       ->check(positive())
       ->group(cameras);
-  // --recalibrate and --recalibrate-hold-focal are the defaults; kept for old
-  // commands. Defined first so that the setting flags given with them win.
-  app.add_flag_callback("--recalibrate", [&p] { p.recalibrate.enabled = true; },
-                        "(the default; kept for old commands)")
-      ->default_function([] { return std::string("false"); })
-      ->group(cameras);
-  app.add_flag_callback("--recalibrate-hold-focal", [&f] { f.recalibrate_hold_focal = true; },
-                        "(the default; kept for old commands)")
-      ->default_function([] { return std::string("false"); })
-      ->group(cameras);
+  add_old_default_flag(app, "--recalibrate", p.recalibrate.enabled, true)->group(cameras);
+  add_old_default_flag(app, "--recalibrate-hold-focal", f.recalibrate_hold_focal, true)->group(cameras);
   add_setting_flag(app, "--no-recalibrate", p.recalibrate.enabled, false,
                    "G1 at the source cameras as estimated (default: once the completion is back, COLMAP again on "
                    "the source frames and the completion together, and G1 at those cameras where they pass the "
