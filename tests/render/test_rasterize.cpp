@@ -129,7 +129,7 @@ TEST_CASE("tile lanes: every pixel once, in blocks where the tile size allows", 
         x_lo = std::min(x_lo, L.ox[q]); x_hi = std::max(x_hi, L.ox[q]);
         y_lo = std::min(y_lo, L.oy[q]); y_hi = std::max(y_hi, L.oy[q]);
       }
-      // The chunk's bounds are those of its own pixel centres (scalar culling relies on it).
+      // The chunk's bounds are those of its own pixel centres (ChunkBoxes relies on it).
       CHECK(L.cx_lo[std::size_t(k)] == x_lo);
       CHECK(L.cx_hi[std::size_t(k)] == x_hi);
       CHECK(L.cy_lo[std::size_t(k)] == y_lo);
@@ -146,6 +146,74 @@ TEST_CASE("tile lanes: every pixel once, in blocks where the tile size allows", 
       }
     }
     CHECK(std::count(seen.begin(), seen.end(), 1) == pixels);
+  }
+}
+
+namespace {
+
+// ChunkBoxes' bits against one scalar test per chunk: a rect meets chunk k when
+// it reaches one of its pixel centres, and holds it when it holds all of them.
+template <class S, class B>
+void check_chunk_boxes(int tile, std::uint32_t seed) {
+  INFO("tile " << tile << ", " << B::size << " lanes");
+  TileLanes<S> L;
+  L.build(tile, int(B::size));
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> corner(0, 3), off(-3, tile + 3), len(0, tile + 2);
+  const int tiles_x = 5;
+  std::vector<std::uint64_t> want_meets, want_within;
+  for (int trial = 0; trial < 400; ++trial) {
+    const int tx0 = tile * corner(rng), ty0 = tile * corner(rng);
+    SplatRecord<S> G{};
+    const int x0 = std::max(0, tx0 + off(rng)), y0 = std::max(0, ty0 + off(rng));
+    G.x_lo = S(x0);
+    G.y_lo = S(y0);
+    G.x_hi = S(std::min(tiles_x * tile, x0 + 1 + len(rng)));
+    G.y_hi = S(std::min(tiles_x * tile, y0 + 1 + len(rng)));
+    const detail::ChunkBoxes<B, S> boxes(L, S(tx0), S(ty0));
+    REQUIRE(boxes.words == (L.chunks + 63) / 64);
+    for (int w = 0; w < boxes.words; ++w) {
+      std::uint64_t meets = 0, within = 0;
+      for (int k = 64 * w; k < std::min(L.chunks, 64 * w + 64); ++k) {
+        const S cxl = S(tx0) + L.cx_lo[std::size_t(k)], cxh = S(tx0) + L.cx_hi[std::size_t(k)];
+        const S cyl = S(ty0) + L.cy_lo[std::size_t(k)], cyh = S(ty0) + L.cy_hi[std::size_t(k)];
+        const std::uint64_t bit = std::uint64_t(1) << (k - 64 * w);
+        if (!(G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl)) meets |= bit;
+        if (G.x_lo < cxl && G.x_hi > cxh && G.y_lo < cyl && G.y_hi > cyh) within |= bit;
+      }
+      INFO("trial " << trial << " word " << w << " rect [" << G.x_lo << ", " << G.x_hi << "] x [" << G.y_lo << ", "
+                    << G.y_hi << "] tile at " << tx0 << ", " << ty0);
+      CHECK(boxes.meets(G, w) == meets);
+      CHECK(boxes.within(G, w) == within);
+    }
+  }
+}
+
+}  // namespace
+
+TEMPLATE_TEST_CASE("chunk bits: each chunk a rect meets or holds, as a test per chunk finds them", "[render]", float,
+                   double) {
+  using S = TestType;
+  for (int tile : {1, 5, 8, 16, 32, 64}) {
+    check_chunk_boxes<S, simd::native_batch<S>>(tile, std::uint32_t(tile));
+    check_chunk_boxes<S, simd::scalar_batch<S>>(tile, std::uint32_t(tile) + 100);
+  }
+}
+
+TEMPLATE_TEST_CASE("mask_bits: lane i's flag at bit i", "[render]", float, double) {
+  using B = simd::native_batch<TestType>;
+  constexpr std::size_t N = B::size;
+  alignas(64) TestType v[N];
+  for (std::uint32_t pattern : {0u, 1u, 0x5555u, 0xffffu, 0x8001u, 0x1234u}) {
+    std::uint64_t want = 0;
+    for (std::size_t i = 0; i < N; ++i) {
+      const bool on = (pattern >> i) & 1u;
+      v[i] = on ? TestType(1) : TestType(0);
+      want |= std::uint64_t(on) << i;
+    }
+    CHECK(simd::mask_bits(B::load_unaligned(v) > B(TestType(0.5))) == want);
+    CHECK(simd::mask_bits(simd::scalar_batch<TestType>(v[0]) > simd::scalar_batch<TestType>(TestType(0.5))) ==
+          (want & 1u));
   }
 }
 

@@ -16,6 +16,7 @@
 //   fma(x, y, z) = x*y+z, exp, log, exp2_nonpositive, min, max, abs, sqrt, ceil, floor,
 //   select(m, a, b),
 //   hadd(b) (sum of lanes; xsimd 8.1 has hadd, not reduce_add), any(m), all(m),
+//   mask_bits(m) (lane i's flag at bit i, up to 64 lanes),
 //   hadd_rows(rows, count, out): out[i] = hadd(rows[i]) for many rows at once.
 //   transpose_block<B>(in, in_stride, out, out_stride): a B::size x B::size block,
 //   out[c * out_stride + r] = in[r * in_stride + c] (row-major blocks of scalars).
@@ -98,6 +99,7 @@ template <class T> inline scalar_batch<T> select(scalar_mask<T> m, scalar_batch<
 template <class T> inline T hadd(scalar_batch<T> x) { return x.v; }
 template <class T> inline bool any(scalar_mask<T> m) { return m.v; }
 template <class T> inline bool all(scalar_mask<T> m) { return m.v; }
+template <class T> inline std::uint64_t mask_bits(scalar_mask<T> m) { return m.v ? 1u : 0u; }
 template <class T> inline scalar_batch<T> ldexp_int(scalar_batch<T> x, scalar_batch<T> n) { return std::ldexp(x.v, int(n.v)); }
 template <class T> inline scalar_batch<T> round_nearest(scalar_batch<T> x) { return std::nearbyint(x.v); }
 
@@ -128,6 +130,30 @@ template <class T, class A> inline xsimd::batch<T, A> select(const xsimd::batch_
 template <class T, class A> inline T hadd(const xsimd::batch<T, A>& x) { return xsimd::hadd(x); }
 template <class T, class A> inline bool any(const xsimd::batch_bool<T, A>& m) { return xsimd::any(m); }
 template <class T, class A> inline bool all(const xsimd::batch_bool<T, A>& m) { return xsimd::all(m); }
+template <class T, class A> inline std::uint64_t mask_bits(const xsimd::batch_bool<T, A>& m) {
+  using R = typename xsimd::batch_bool<T, A>::register_type;
+  constexpr std::size_t n = xsimd::batch_bool<T, A>::size;
+  static_assert(n <= 64, "mask_bits: more than 64 lanes");
+  if constexpr (std::is_integral<R>::value) {  // AVX-512: the mask register is the bits
+    return std::uint64_t(R(m)) & (n == 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << n) - 1);
+  } else {
+    // AVX and SSE float masks are float registers (__m256, __m128d, ...).
+    constexpr bool f32 = std::is_same<T, float>::value, f64 = std::is_same<T, double>::value;
+#if defined(__AVX__)
+    if constexpr (sizeof(R) == 32 && f32) return std::uint64_t(unsigned(_mm256_movemask_ps(R(m))));
+    if constexpr (sizeof(R) == 32 && f64) return std::uint64_t(unsigned(_mm256_movemask_pd(R(m))));
+#endif
+#if defined(__SSE2__)
+    if constexpr (sizeof(R) == 16 && f32) return std::uint64_t(unsigned(_mm_movemask_ps(R(m))));
+    if constexpr (sizeof(R) == 16 && f64) return std::uint64_t(unsigned(_mm_movemask_pd(R(m))));
+#endif
+    bool b[n];
+    m.store_unaligned(b);
+    std::uint64_t bits = 0;
+    for (std::size_t i = 0; i < n; ++i) bits |= std::uint64_t(b[i]) << i;
+    return bits;
+  }
+}
 template <class T, class A> inline xsimd::batch<T, A> round_nearest(const xsimd::batch<T, A>& x) { return xsimd::nearbyint(x); }
 // x * 2^n for n holding small integral values.
 template <class T, class A> inline xsimd::batch<T, A> ldexp_int(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& n) {

@@ -64,7 +64,7 @@ struct RasterOutput {
 };
 
 // Pixel offsets of the lanes of each chunk of a tile, for one tile size and lane
-// count, plus each chunk's pixel-centre bounding box (for scalar culling).
+// count, plus each chunk's pixel-centre bounding box in the tile (ChunkBoxes).
 // Chunks are blocks of bw x bh pixels, bw the smallest power of two with
 // bw^2 >= lanes, in row-major block order. Trained scenes are mostly Gaussians a
 // few pixels wide: a 4x4 block wastes fewer lanes on them than a 16-pixel row
@@ -75,7 +75,8 @@ template <class Scalar>
 struct TileLanes {
   int tile_size = 0, lanes = 0, chunks = 0;
   std::vector<Scalar> ox, oy;                      // [chunks * lanes] centre offsets (x + 0.5)
-  std::vector<Scalar> cx_lo, cx_hi, cy_lo, cy_hi;  // [chunks]
+  // [chunks, padded to a multiple of lanes] with bounds no rect meets
+  std::vector<Scalar> cx_lo, cx_hi, cy_lo, cy_hi;
   std::vector<std::int32_t> pixel;                 // [chunks * lanes] pixel index in the tile, -1 = padding
 
   void build(int ts, int n_lanes) {
@@ -88,8 +89,9 @@ struct TileLanes {
     ox.assign(total, Scalar(0.5));
     oy.assign(total, Scalar(1 << 24));  // padding lanes sit far below any image: dead
     pixel.assign(total, -1);
-    cx_lo.assign(std::size_t(chunks), Scalar(1e30)); cx_hi.assign(std::size_t(chunks), Scalar(-1e30));
-    cy_lo.assign(std::size_t(chunks), Scalar(1e30)); cy_hi.assign(std::size_t(chunks), Scalar(-1e30));
+    const std::size_t padded = std::size_t((chunks + lanes - 1) / lanes) * std::size_t(lanes);
+    cx_lo.assign(padded, Scalar(1e30)); cx_hi.assign(padded, Scalar(-1e30));
+    cy_lo.assign(padded, Scalar(1e30)); cy_hi.assign(padded, Scalar(-1e30));
     int bw = 1;
     while (bw * bw < lanes) bw *= 2;
     const int bh = lanes / bw;
@@ -114,8 +116,9 @@ struct RasterWorkspace {
   TileLanes<Scalar> lanes;
   struct alignas(64) WorkerStats { std::uint64_t evaluated = 0, contributions = 0; };
   std::vector<WorkerStats> worker_stats;
+  std::vector<std::vector<std::uint64_t>> worker_chunk_bits;  // [workers][a tile's entries] (forward)
   // Backward only.
-  std::vector<std::vector<Scalar>> worker_scratch;  // [workers][9 * chunks * lanes]
+  std::vector<std::vector<Scalar>> worker_scratch;  // [workers][7 lanes per pixel slot + chunk slots]
   std::vector<Scalar> pair_grad;                    // [slots][10] rank-major (BinWorkspace::entry_slot)
   std::vector<std::int32_t> live_rank_end;          // [tiles] entries of rank >= this were not replayed
   std::vector<Scalar> tile_background;              // [tiles][3] each tile's share of dL/d(background)
@@ -147,12 +150,58 @@ void prepare_raster_output(const TileGrid& g, RasterOutput<Scalar>& out) {
   out.replay.resize(std::size_t(g.width) * std::size_t(g.height));
 }
 
+// Which chunks of a tile a Gaussian's rect meets, as bits: chunk k at bit
+// k % 64 of word k / 64. The same comparisons as a scalar test per chunk
+// (relative to the tile's corner, exact for the integer and half-integer
+// bounds of images under 2^23 pixels a side), for B::size chunks at once. On
+// a trained scene a tile lists many Gaussians a few pixels wide, each meeting
+// one to four of its 16 chunks: testing every chunk against every entry, one
+// unpredictable branch each, had cost more than the blending
+// (docs/benchmarks.md).
+template <class B, class Scalar>
+struct ChunkBoxes {
+  const TileLanes<Scalar>* L;
+  Scalar fx0, fy0;
+  int words;
+
+  ChunkBoxes(const TileLanes<Scalar>& lanes, Scalar x0, Scalar y0)
+      : L(&lanes), fx0(x0), fy0(y0), words((lanes.chunks + 63) / 64) {}
+
+  // Chunks of word w that the rect [x_lo, x_hi] x [y_lo, y_hi] reaches a pixel centre of.
+  std::uint64_t meets(const SplatRecord<Scalar>& G, int w) const {
+    const B xl(G.x_lo - fx0), xh(G.x_hi - fx0), yl(G.y_lo - fy0), yh(G.y_hi - fy0);
+    return over_word(w, [&](std::size_t o) {
+      return (xl < B::load_unaligned(L->cx_hi.data() + o)) & (xh > B::load_unaligned(L->cx_lo.data() + o)) &
+             (yl < B::load_unaligned(L->cy_hi.data() + o)) & (yh > B::load_unaligned(L->cy_lo.data() + o));
+    });
+  }
+  // Chunks of word w wholly inside the rect.
+  std::uint64_t within(const SplatRecord<Scalar>& G, int w) const {
+    const B xl(G.x_lo - fx0), xh(G.x_hi - fx0), yl(G.y_lo - fy0), yh(G.y_hi - fy0);
+    return over_word(w, [&](std::size_t o) {
+      return (xl < B::load_unaligned(L->cx_lo.data() + o)) & (xh > B::load_unaligned(L->cx_hi.data() + o)) &
+             (yl < B::load_unaligned(L->cy_lo.data() + o)) & (yh > B::load_unaligned(L->cy_hi.data() + o));
+    });
+  }
+  // Bits of word w from test(o), the mask of chunks o .. o + B::size - 1
+  // (none past the last chunk).
+  template <class Test>
+  std::uint64_t over_word(int w, Test&& test) const {
+    constexpr std::size_t N = B::size;
+    static_assert(64 % N == 0, "ChunkBoxes: the lane count must divide 64");
+    const std::size_t first = std::size_t(w) * 64, end = std::min(first + 64, L->cx_lo.size());
+    std::uint64_t bits = 0;
+    for (std::size_t o = first; o < end; o += N) bits |= simd::mask_bits(test(o)) << (o - first);
+    const std::size_t chunks = std::size_t(L->chunks) - first;
+    return chunks >= 64 ? bits : bits & ((std::uint64_t(1) << chunks) - 1);
+  }
+};
+
 // One chunk's running state while it walks the tile's list front to back.
 template <class B, class Scalar>
 struct ChunkBlend {
   using M = simd::mask_t<B>;
   using Rules = RasterRules<Scalar>;
-  Scalar cxl, cxh, cyl, cyh;  // pixel-centre bounds of the chunk (scalar culling)
   B px, py;
   M active;
   B T, cr, cg, cb, dep, cnt, last, ev;
@@ -160,8 +209,6 @@ struct ChunkBlend {
 
   ChunkBlend(int k, const TileLanes<Scalar>& L, Scalar fx0, Scalar fy0, const TileGrid& g) {
     const std::size_t N = B::size;
-    cxl = fx0 + L.cx_lo[std::size_t(k)]; cxh = fx0 + L.cx_hi[std::size_t(k)];
-    cyl = fy0 + L.cy_lo[std::size_t(k)]; cyh = fy0 + L.cy_hi[std::size_t(k)];
     px = B::load_unaligned(L.ox.data() + std::size_t(k) * N) + B(fx0);
     py = B::load_unaligned(L.oy.data() + std::size_t(k) * N) + B(fy0);
     active = (px < B(Scalar(g.width))) & (py < B(Scalar(g.height)));
@@ -170,10 +217,9 @@ struct ChunkBlend {
     live = simd::any(active);  // false for a chunk wholly outside the image
   }
 
-  // Blend list entry j (Gaussian G) into the chunk's live lanes.
-  void step(const SplatRecord<Scalar>& G, int j) {
-    // Whole chunk outside the Gaussian's rect: nothing to do (scalar test).
-    if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) return;
+  // Blend list entry j (Gaussian G, whose rect meets the chunk: ChunkBoxes)
+  // into the chunk's live lanes.
+  void blend(const SplatRecord<Scalar>& G, int j) {
     const B zero(Scalar(0)), one(Scalar(1));
     const M inside = active & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
     const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
@@ -229,10 +275,12 @@ struct ChunkBlend {
 // on AVX-512). Each chunk's arithmetic and order are unchanged, so the image is
 // the same bit for bit.
 constexpr int kChunksTogether = 4;
+static_assert(64 % kChunksTogether == 0, "a group of chunks must not straddle two words of ChunkBoxes bits");
 
 template <class B, class Scalar>
 void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Scalar>& L, const RasterParams<Scalar>& params,
-                    RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out) {
+                    RasterOutput<Scalar>& out, std::uint64_t& evaluated_out, std::uint64_t& contributions_out,
+                    std::vector<std::uint64_t>& chunk_bits) {
   using Chunk = ChunkBlend<B, Scalar>;
   const TileGrid& g = bins.grid;
   const int tx0 = g.tile_x0(t), ty0 = g.tile_y0(t);
@@ -254,6 +302,27 @@ void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Sca
   }
   std::uint64_t evaluated = 0, contributions = 0;
 
+  // Each entry's chunks, found once for the tile (entry j's word w at
+  // chunk_bits[j * words + w]), in blocks as far down the list as some group
+  // of chunks walks: on dense scenes the pixels stop long before the list ends.
+  const ChunkBoxes<B, Scalar> boxes(L, fx0, fy0);
+  const int words = boxes.words;
+  if (chunk_bits.size() < std::size_t(n) * std::size_t(words)) chunk_bits.resize(std::size_t(n) * std::size_t(words));
+  int found = 0;  // entries whose bits are in chunk_bits
+  auto find_bits = [&] {
+    const int end = std::min(n, found + 32);
+    for (int j = found; j < end; ++j) {
+#if defined(__GNUC__)
+      // The tile's records lie scattered over the rank range; this loop is
+      // short, so they are asked for well ahead.
+      if (j + 24 < n) __builtin_prefetch(&rec[ranks[j + 24]]);
+#endif
+      for (int w = 0; w < words; ++w)
+        chunk_bits[std::size_t(j) * std::size_t(words) + std::size_t(w)] = boxes.meets(rec[ranks[j]], w);
+    }
+    found = end;
+  };
+
   constexpr int C = kChunksTogether;
   for (int k0 = 0; k0 < L.chunks; k0 += C) {
     // Chunks past the tile's last are clones of it, never live and never stored.
@@ -262,17 +331,18 @@ void rasterize_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes<Sca
     static_assert(C == 4, "rasterize_tile: the chunks are listed out below");
     for (int i = 0; i < C; ++i)
       if (k0 + i >= L.chunks) c[i].live = false;
+    // The four chunks' bits (C divides 64, so they share a word).
+    const int shift = k0 % 64;
     for (int j = 0; j < n; ++j) {
-#if defined(__GNUC__)
-      // The first chunks meet the tile's records scattered over the rank range.
-      if (k0 == 0 && j + 8 < n) __builtin_prefetch(&rec[ranks[j + 8]]);
-#endif
+      if (j == found) find_bits();
+      const unsigned bits = unsigned(chunk_bits[std::size_t(j) * std::size_t(words) + std::size_t(k0 / 64)] >> shift) & 15u;
+      if (bits == 0) continue;
       const SplatRecord<Scalar>& G = rec[ranks[j]];
       // Written out: a loop over the four was measurably slower.
-      if (c[0].live) c[0].step(G, j);
-      if (c[1].live) c[1].step(G, j);
-      if (c[2].live) c[2].step(G, j);
-      if (c[3].live) c[3].step(G, j);
+      if ((bits & 1u) && c[0].live) c[0].blend(G, j);
+      if ((bits & 2u) && c[1].live) c[1].blend(G, j);
+      if ((bits & 4u) && c[2].live) c[2].blend(G, j);
+      if ((bits & 8u) && c[3].live) c[3].blend(G, j);
       if (!(c[0].live || c[1].live || c[2].live || c[3].live)) break;
     }
     for (int i = 0; i < C; ++i)
@@ -298,9 +368,11 @@ void rasterize_with(const BinWorkspace<Scalar>& bins, const RasterParams<Scalar>
   ws.lanes.build(g.tile_size, int(B::size));
   const int threads = resolve_threads(params.threads);
   ws.worker_stats.assign(std::size_t(threads), {});
+  ws.worker_chunk_bits.resize(std::size_t(threads));
   parallel_for(std::size_t(g.tile_count()), threads, [&](std::size_t t, int w) {
     auto& st = ws.worker_stats[std::size_t(w)];
-    detail::rasterize_tile<B>(int(t), bins, ws.lanes, params, out, st.evaluated, st.contributions);
+    detail::rasterize_tile<B>(int(t), bins, ws.lanes, params, out, st.evaluated, st.contributions,
+                              ws.worker_chunk_bits[std::size_t(w)]);
   });
   out.stats = {};
   for (const auto& st : ws.worker_stats) {

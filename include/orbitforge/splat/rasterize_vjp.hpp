@@ -68,6 +68,23 @@ inline void prefetch_span(const T* a, std::size_t first, std::size_t last) {
 #endif
 }
 
+// Scratch slots for the chunks' largest replay counts: one batch per B::size chunks.
+template <class Scalar>
+std::size_t chunk_max_slots(const TileLanes<Scalar>& L) {
+  const std::size_t lanes = std::size_t(L.lanes);
+  return (std::size_t(L.chunks) + lanes - 1) / lanes * lanes;
+}
+
+inline int lowest_bit(std::uint64_t bits) {
+#if defined(__GNUC__) || defined(__clang__)
+  return __builtin_ctzll(bits);
+#else
+  int k = 0;
+  while (!((bits >> k) & 1u)) ++k;
+  return k;
+#endif
+}
+
 enum : int { kGradOpacity, kGradA, kGradB, kGradC, kGradMx, kGradMy, kGradR, kGradG, kGradBl, kGradZ, kGradFields };
 
 // Depth: v_depth is given (training has no depth term: its loads and sums are skipped).
@@ -112,7 +129,9 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
   Scalar* sVg = sVr + lanes;
   Scalar* sVb = sVg + lanes;
   Scalar* sVd = sVb + lanes;
-  Scalar* chunk_max = sVd + lanes;  // [chunks] largest replay count of the chunk
+  Scalar* chunk_max = sVd + lanes;  // [chunks, padded to lanes with 0] largest replay count of the chunk
+  std::fill_n(chunk_max, chunk_max_slots(L), Scalar(0));
+  const ChunkBoxes<B, Scalar> boxes(L, fx0, fy0);
   // The tile's rows of T, replay count and v_colour lie a frame row apart and
   // miss the cache: asked for all at once, the misses overlap instead of
   // stalling the loop below one by one (about a tenth of this kernel at 896x512).
@@ -179,28 +198,25 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
     const B jj = B(Scalar(j));
     B g_o = zero, g_a = zero, g_b = zero, g_c = zero, g_mx = zero, g_my = zero;
     B g_r = zero, g_g = zero, g_bl = zero, g_z = zero;
-    for (int k = 0; k < L.chunks; ++k) {
-      if (Scalar(j) >= chunk_max[k]) continue;  // no lane of the chunk reached this entry
-      const Scalar cxl = fx0 + L.cx_lo[std::size_t(k)], cxh = fx0 + L.cx_hi[std::size_t(k)];
-      const Scalar cyl = fy0 + L.cy_lo[std::size_t(k)], cyh = fy0 + L.cy_hi[std::size_t(k)];
-      if (G.x_lo >= cxh || G.x_hi <= cxl || G.y_lo >= cyh || G.y_hi <= cyl) continue;
+    // Chunk k of the tile, which the rect meets and some lane of which replays
+    // entry j; whole: the chunk lies inside the rect.
+    auto replay_chunk = [&](int k, bool whole) {
       const std::size_t base = std::size_t(k) * N;
       const B px = B::load_unaligned(L.ox.data() + base) + B(fx0);
       const B py = B::load_unaligned(L.oy.data() + base) + B(fy0);
       const M replayed = jj < B::load_unaligned(sRep + base);
       // Per-lane rect tests only for chunks the rect cuts.
-      const bool whole = G.x_lo < cxl && G.x_hi > cxh && G.y_lo < cyl && G.y_hi > cyh;
       const M inside = whole ? replayed
                              : replayed & (px > B(G.x_lo)) & (px < B(G.x_hi)) & (py > B(G.y_lo)) & (py < B(G.y_hi));
       // Same arithmetic as the forward, so alpha (and the skip decisions) match bit for bit.
       const B dx = px - B(G.mean_x), dy = py - B(G.mean_y);
       const B p2 = simd::fma(B(G.pxx) * dx, dx, simd::fma(B(G.pxy) * dx, dy, B(G.pyy) * dy * dy));
-      if (!simd::any(inside & (p2 >= B(G.min_power)))) continue;  // no lane reaches alpha 1/255
+      if (!simd::any(inside & (p2 >= B(G.min_power)))) return;  // no lane reaches alpha 1/255
       const B e = simd::exp2_nonpositive(p2);
       const B raw = B(G.opacity) * e;
       const B alpha = simd::min(B(Rules::max_alpha()), raw);
       const M m = inside & (p2 <= zero) & (alpha >= B(Rules::min_alpha()));
-      if (!simd::any(m)) continue;
+      if (!simd::any(m)) return;
 
       const B T_after = B::load_unaligned(sT + base);
       const B acc = B::load_unaligned(sAcc + base);
@@ -236,6 +252,19 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
       // coefficients: sum v_power dx and v_power dy, combine after the lane sums.
       g_mx = simd::fma(v_power, dx, g_mx);
       g_my = simd::fma(v_power, dy, g_my);
+    };
+    // The chunks that the rect meets and that replay entry j (a lane's replay
+    // count is above j), in ascending order.
+    for (int w = 0; w < boxes.words; ++w) {
+      std::uint64_t bits = boxes.meets(G, w) & boxes.over_word(w, [&](std::size_t o) {
+        return jj < B::load_unaligned(chunk_max + o);
+      });
+      if (bits == 0) continue;
+      const std::uint64_t within = boxes.within(G, w);
+      for (; bits != 0; bits &= bits - 1) {
+        const int k = lowest_bit(bits);
+        replay_chunk(64 * w + k, (within >> k) & 1u);
+      }
     }
     // The conic's power factors (-1/2, -1, -1/2) are applied once per vector.
     const B rows[kGradFields] = {g_o, B(Scalar(-0.5)) * g_a, -g_b, B(Scalar(-0.5)) * g_c, g_mx, g_my, g_r, g_g, g_bl, g_z};
@@ -278,7 +307,7 @@ void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Sca
   const int threads = resolve_threads(params.threads);
   const std::size_t lanes = std::size_t(ws.lanes.chunks) * B::size;
   ws.worker_scratch.resize(std::size_t(threads));
-  for (auto& s : ws.worker_scratch) s.resize(7 * lanes + std::size_t(ws.lanes.chunks));
+  for (auto& s : ws.worker_scratch) s.resize(7 * lanes + detail::chunk_max_slots(ws.lanes));
   check_memory_request(std::uint64_t(bins.slots()) * detail::kGradFields * sizeof(Scalar),
                        "rasterize_vjp: the per-entry gradients of ", bins.slots(), " tile-box slots");
   ws.pair_grad.resize(bins.slots() * detail::kGradFields);
