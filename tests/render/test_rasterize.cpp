@@ -126,6 +126,8 @@ TEST_CASE("tile lanes: every pixel once, in blocks where the tile size allows", 
         ++seen[std::size_t(p)];
         CHECK(L.ox[q] == float(p % c.tile) + 0.5f);
         CHECK(L.oy[q] == float(p / c.tile) + 0.5f);
+        CHECK(L.col[q] == p % c.tile);
+        CHECK(L.row[q] == p / c.tile);
         x_lo = std::min(x_lo, L.ox[q]); x_hi = std::max(x_hi, L.ox[q]);
         y_lo = std::min(y_lo, L.oy[q]); y_hi = std::max(y_hi, L.oy[q]);
       }

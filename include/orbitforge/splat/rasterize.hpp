@@ -78,6 +78,9 @@ struct TileLanes {
   // [chunks, padded to a multiple of lanes] with bounds no rect meets
   std::vector<Scalar> cx_lo, cx_hi, cy_lo, cy_hi;
   std::vector<std::int32_t> pixel;                 // [chunks * lanes] pixel index in the tile, -1 = padding
+  // [chunks * lanes] the pixel's column and row in the tile (padding: 0), so
+  // that storing a chunk divides nothing by the tile size.
+  std::vector<std::int32_t> col, row;
 
   void build(int ts, int n_lanes) {
     if (ts == tile_size && n_lanes == lanes) return;
@@ -89,6 +92,8 @@ struct TileLanes {
     ox.assign(total, Scalar(0.5));
     oy.assign(total, Scalar(1 << 24));  // padding lanes sit far below any image: dead
     pixel.assign(total, -1);
+    col.assign(total, 0);
+    row.assign(total, 0);
     const std::size_t padded = std::size_t((chunks + lanes - 1) / lanes) * std::size_t(lanes);
     cx_lo.assign(padded, Scalar(1e30)); cx_hi.assign(padded, Scalar(-1e30));
     cy_lo.assign(padded, Scalar(1e30)); cy_hi.assign(padded, Scalar(-1e30));
@@ -104,6 +109,8 @@ struct TileLanes {
       ox[std::size_t(q)] = x;
       oy[std::size_t(q)] = y;
       pixel[std::size_t(q)] = p;
+      col[std::size_t(q)] = p % ts;
+      row[std::size_t(q)] = p / ts;
       cx_lo[std::size_t(k)] = std::min(cx_lo[std::size_t(k)], x); cx_hi[std::size_t(k)] = std::max(cx_hi[std::size_t(k)], x);
       cy_lo[std::size_t(k)] = std::min(cy_lo[std::size_t(k)], y); cy_hi[std::size_t(k)] = std::max(cy_hi[std::size_t(k)], y);
     }
@@ -251,9 +258,9 @@ struct ChunkBlend {
     T.store_unaligned(s_T); cr.store_unaligned(s_r); cg.store_unaligned(s_g); cb.store_unaligned(s_b);
     dep.store_unaligned(s_d); cnt.store_unaligned(s_n); last.store_unaligned(s_l); ev.store_unaligned(s_e);
     for (std::size_t l = 0; l < N; ++l) {
-      const int p = L.pixel[std::size_t(k) * N + l];
-      if (p < 0) continue;
-      const int x = tx0 + p % L.tile_size, y = ty0 + p / L.tile_size;
+      const std::size_t q = std::size_t(k) * N + l;
+      if (L.pixel[q] < 0) continue;
+      const int x = tx0 + L.col[q], y = ty0 + L.row[q];
       if (x >= g.width || y >= g.height) continue;
       const std::size_t pi = std::size_t(y) * std::size_t(g.width) + std::size_t(x);
       out.color.data[3 * pi + 0] = s_r[l] + s_T[l] * params.background[0];

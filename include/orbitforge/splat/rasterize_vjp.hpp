@@ -146,7 +146,7 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
     for (std::size_t l = 0; l < N; ++l) {
       const std::size_t li = std::size_t(k) * N + l;
       const int p = L.pixel[li];
-      const int x = p < 0 ? g.width : tx0 + p % L.tile_size, y = p < 0 ? g.height : ty0 + p / L.tile_size;
+      const int x = p < 0 ? g.width : tx0 + L.col[li], y = p < 0 ? g.height : ty0 + L.row[li];
       if (p < 0 || x >= g.width || y >= g.height) {
         sT[li] = sAcc[li] = sRep[li] = sVr[li] = sVg[li] = sVb[li] = sVd[li] = Scalar(0);
         continue;
