@@ -123,7 +123,7 @@ struct RasterWorkspace {
   TileLanes<Scalar> lanes;
   struct alignas(64) WorkerStats { std::uint64_t evaluated = 0, contributions = 0; };
   std::vector<WorkerStats> worker_stats;
-  std::vector<std::vector<std::uint64_t>> worker_chunk_bits;  // [workers][a tile's entries] (forward)
+  std::vector<std::vector<std::uint64_t>> worker_chunk_bits;  // [workers][a tile's entries x ChunkBoxes words] (forward)
   // Backward only.
   std::vector<std::vector<Scalar>> worker_scratch;  // [workers][7 lanes per pixel slot + chunk slots]
   std::vector<Scalar> pair_grad;                    // [slots][10] rank-major (BinWorkspace::entry_slot)
