@@ -82,6 +82,9 @@ struct TileLanes {
   // that storing a chunk divides nothing by the tile size.
   std::vector<std::int32_t> col, row;
 
+  // The chunk count rounded up to whole batches of lanes (the bounds' length).
+  std::size_t padded_chunks() const { return cx_lo.size(); }
+
   void build(int ts, int n_lanes) {
     if (ts == tile_size && n_lanes == lanes) return;
     tile_size = ts;
@@ -196,7 +199,7 @@ struct ChunkBoxes {
   std::uint64_t over_word(int w, Test&& test) const {
     constexpr std::size_t N = B::size;
     static_assert(64 % N == 0, "ChunkBoxes: the lane count must divide 64");
-    const std::size_t first = std::size_t(w) * 64, end = std::min(first + 64, L->cx_lo.size());
+    const std::size_t first = std::size_t(w) * 64, end = std::min(first + 64, L->padded_chunks());
     std::uint64_t bits = 0;
     for (std::size_t o = first; o < end; o += N) bits |= simd::mask_bits(test(o)) << (o - first);
     const std::size_t chunks = std::size_t(L->chunks) - first;

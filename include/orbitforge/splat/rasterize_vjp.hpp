@@ -68,13 +68,6 @@ inline void prefetch_span(const T* a, std::size_t first, std::size_t last) {
 #endif
 }
 
-// Scratch slots for the chunks' largest replay counts: one batch per B::size chunks.
-template <class Scalar>
-std::size_t chunk_max_slots(const TileLanes<Scalar>& L) {
-  const std::size_t lanes = std::size_t(L.lanes);
-  return (std::size_t(L.chunks) + lanes - 1) / lanes * lanes;
-}
-
 inline int lowest_bit(std::uint64_t bits) {
 #if defined(__GNUC__) || defined(__clang__)
   return __builtin_ctzll(bits);
@@ -129,8 +122,8 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
   Scalar* sVg = sVr + lanes;
   Scalar* sVb = sVg + lanes;
   Scalar* sVd = sVb + lanes;
-  Scalar* chunk_max = sVd + lanes;  // [chunks, padded to lanes with 0] largest replay count of the chunk
-  std::fill_n(chunk_max, chunk_max_slots(L), Scalar(0));
+  Scalar* chunk_max = sVd + lanes;  // [padded_chunks(), 0 past the last] largest replay count of the chunk
+  std::fill_n(chunk_max, L.padded_chunks(), Scalar(0));
   const ChunkBoxes<B, Scalar> boxes(L, fx0, fy0);
   // The tile's rows of T, replay count and v_colour lie a frame row apart and
   // miss the cache: asked for all at once, the misses overlap instead of
@@ -307,7 +300,7 @@ void rasterize_vjp_with(const BinWorkspace<Scalar>& bins, const RasterParams<Sca
   const int threads = resolve_threads(params.threads);
   const std::size_t lanes = std::size_t(ws.lanes.chunks) * B::size;
   ws.worker_scratch.resize(std::size_t(threads));
-  for (auto& s : ws.worker_scratch) s.resize(7 * lanes + detail::chunk_max_slots(ws.lanes));
+  for (auto& s : ws.worker_scratch) s.resize(7 * lanes + ws.lanes.padded_chunks());
   check_memory_request(std::uint64_t(bins.slots()) * detail::kGradFields * sizeof(Scalar),
                        "rasterize_vjp: the per-entry gradients of ", bins.slots(), " tile-box slots");
   ws.pair_grad.resize(bins.slots() * detail::kGradFields);
