@@ -35,13 +35,10 @@
 #pragma GCC diagnostic ignored "-Wold-style-cast"
 #endif
 #define STB_IMAGE_IMPLEMENTATION
-#define STB_IMAGE_WRITE_IMPLEMENTATION
 #if __has_include(<stb_image.h>)
 #include <stb_image.h>
-#include <stb_image_write.h>
 #else
 #include <stb/stb_image.h>
-#include <stb/stb_image_write.h>
 #endif
 #if defined(__GNUC__)
 #pragma GCC diagnostic pop

@@ -1,6 +1,8 @@
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -9,6 +11,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <unistd.h>
 
@@ -55,6 +58,100 @@ TEMPLATE_TEST_CASE("PNG round trip of 8-bit values", "[io][image]", float, doubl
   const auto o = read_image<T>((scratch_dir("image_io") / "odd.png").string());
   const int expected[9] = {0, 255, 0, 128, 0, 1, 255, 0, 255};
   for (int i = 0; i < 9; ++i) REQUIRE(o.data[std::size_t(i)] == T(expected[i]) / T(255));
+}
+
+namespace {
+
+// CRC-32 of the PNG specification (polynomial 0xEDB88320, reflected), bit by
+// bit: independent of the zlib the encoder uses.
+std::uint32_t crc32_bitwise(const unsigned char* p, std::size_t n) {
+  std::uint32_t c = 0xFFFFFFFFu;
+  for (std::size_t i = 0; i < n; ++i) {
+    c ^= p[i];
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
+  }
+  return c ^ 0xFFFFFFFFu;
+}
+
+std::uint32_t be32(const std::string& s, std::size_t at) {
+  const auto* q = reinterpret_cast<const unsigned char*>(s.data() + at);
+  return std::uint32_t(q[0]) << 24 | std::uint32_t(q[1]) << 16 | std::uint32_t(q[2]) << 8 | std::uint32_t(q[3]);
+}
+
+}  // namespace
+
+TEST_CASE("png_encode: chunks, CRCs and every sample back through a decoder", "[io][image][png]") {
+  std::mt19937 rng(7);
+  const int sizes[][2] = {{1, 1}, {1, 5}, {6, 1}, {37, 23}, {64, 64}};
+  for (int channels = 1; channels <= 4; ++channels)
+    for (const auto& wh : sizes)
+      for (int content = 0; content < 3; ++content) {
+        const int w = wh[0], h = wh[1];
+        std::vector<unsigned char> px(std::size_t(w) * std::size_t(h) * std::size_t(channels));
+        for (std::size_t i = 0; i < px.size(); ++i)
+          px[i] = content == 0 ? static_cast<unsigned char>(rng() & 255u)                   // noise
+                               : content == 1 ? static_cast<unsigned char>((i * 7 / 3) & 255u)  // ramps
+                                              : static_cast<unsigned char>(200);               // flat
+        INFO(w << "x" << h << "x" << channels << ", content " << content);
+        const std::string png = png_encode(px.data(), w, h, channels);
+        // Signature, then chunks IHDR, IDAT, IEND, each with its CRC.
+        REQUIRE(png.compare(0, 8, std::string("\x89PNG\r\n\x1a\n", 8)) == 0);
+        std::size_t at = 8;
+        std::vector<std::string> types;
+        while (at + 12 <= png.size()) {
+          const std::uint32_t len = be32(png, at);
+          REQUIRE(at + 12 + len <= png.size());
+          types.push_back(png.substr(at + 4, 4));
+          const auto* body = reinterpret_cast<const unsigned char*>(png.data() + at + 4);
+          CHECK(be32(png, at + 8 + len) == crc32_bitwise(body, len + 4));
+          if (types.back() == "IHDR") {
+            REQUIRE(len == 13);
+            CHECK(be32(png, at + 8) == std::uint32_t(w));
+            CHECK(be32(png, at + 12) == std::uint32_t(h));
+            const int colour_type[5] = {0, 0, 4, 2, 6};
+            CHECK(int(static_cast<unsigned char>(png[at + 16])) == 8);
+            CHECK(int(static_cast<unsigned char>(png[at + 17])) == colour_type[channels]);
+          }
+          at += 12 + len;
+        }
+        CHECK(at == png.size());
+        REQUIRE(types == std::vector<std::string>{"IHDR", "IDAT", "IEND"});
+        CHECK(be32(png, png.size() - 4) == 0xAE426082u);  // IEND's CRC, as the specification prints it
+        int dw = 0, dh = 0, dc = 0;
+        unsigned char* back = stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(png.data()), int(png.size()), &dw,
+                                                    &dh, &dc, channels);
+        REQUIRE(back != nullptr);
+        CHECK(dw == w);
+        CHECK(dh == h);
+        CHECK(dc == channels);
+        CHECK(std::equal(px.begin(), px.end(), back));
+        stbi_image_free(back);
+      }
+  CHECK_THROWS_WITH(png_encode(nullptr, 0, 3, 3), Catch::Contains("empty image"));
+  const unsigned char one[5] = {};
+  CHECK_THROWS_WITH(png_encode(one, 1, 1, 5), Catch::Contains("1..4 channels"));
+}
+
+TEST_CASE("PNG output rounds every value as std::lround(v * 255)", "[io][image][png]") {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  Image<float> img(256, 64, 3);
+  for (std::size_t i = 0; i < img.data.size(); ++i) {
+    // Values a hair either side of each half step, and uniform ones.
+    const float half = (float(i % 255) + 0.5f) / 255.0f;
+    img.data[i] = i % 3 == 0 ? u(rng) : std::nextafter(half, i % 3 == 1 ? 0.0f : 1.0f);
+  }
+  const std::string png = png_bytes(img);
+  int w = 0, h = 0, c = 0;
+  unsigned char* back =
+      stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(png.data()), int(png.size()), &w, &h, &c, 3);
+  REQUIRE(back != nullptr);
+  REQUIRE(w * h * 3 == int(img.data.size()));
+  std::size_t wrong = 0;
+  for (std::size_t i = 0; i < img.data.size(); ++i)
+    wrong += long(back[i]) != std::lround(double(img.data[i]) * 255.0) ? 1 : 0;
+  stbi_image_free(back);
+  CHECK(wrong == 0);
 }
 
 TEST_CASE("image readers convert grey and RGBA to RGB", "[io][image]") {

@@ -6,9 +6,9 @@
 //   ORBITFORGE_NO_SIMD                 force the scalar kernels even where xsimd has
 //                                      an architecture (also automatic when the
 //                                      compiler has no SIMD flag set).
-//   ORBITFORGE_NO_STB_IMPLEMENTATION   do not compile stb_image / stb_image_write
-//                                      into io/image_io.hpp (define it when the host
-//                                      program already links an stb implementation).
+//   ORBITFORGE_NO_STB_IMPLEMENTATION   do not compile stb_image into io/image_io.hpp
+//                                      (define it when the host program already
+//                                      links an stb_image implementation).
 //   ORBITFORGE_DEFAULT_THREADS         default worker count for parallel_for when a
 //                                      caller passes 0 (default: hardware threads).
 

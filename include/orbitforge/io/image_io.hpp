@@ -1,6 +1,6 @@
 #pragma once
 // Image files: PNG / JPEG (and the other formats stb_image decodes) read through
-// stb_image, PNG written through stb_image_write, and PFM read and written exactly
+// stb_image, PNG written by io/png_encode.hpp, and PFM read and written exactly
 // as the format defines it, so float output is lossless.
 //
 // Pixel values are in [0, 1]; readers return 3-channel (RGB) images: grey is
@@ -13,10 +13,10 @@
 // when scale < 0 and big endian when scale > 0. We write scale -1.0; the |scale| is
 // not applied to values when reading.
 //
-// stb: this header compiles the stb_image and stb_image_write implementations as
-// static functions (STB_IMAGE_STATIC / STBIW_STATIC) so the library stays
-// header-only. A program that already links its own stb implementation defines
-// ORBITFORGE_NO_STB_IMPLEMENTATION before including this header.
+// stb: this header compiles the stb_image implementation as static functions
+// (STB_IMAGE_STATIC) so the library stays header-only. A program that already
+// links its own stb_image implementation defines ORBITFORGE_NO_STB_IMPLEMENTATION
+// before including this header.
 #include <algorithm>
 #include <charconv>
 #include <cmath>
@@ -31,6 +31,7 @@
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/endian.hpp"
+#include "orbitforge/io/png_encode.hpp"
 
 #if defined(__GNUC__)
 #pragma GCC diagnostic push
@@ -51,26 +52,19 @@
 #ifndef STB_IMAGE_STATIC
 #define STB_IMAGE_STATIC
 #endif
-#ifndef STBIW_STATIC
-#define STBIW_STATIC
-#endif
 #define STB_IMAGE_IMPLEMENTATION
-#define STB_IMAGE_WRITE_IMPLEMENTATION
 #endif
 // Debian installs stb under <stb/...>; other layouts put the headers on the
 // include path directly. Either works without extra include flags.
 #if __has_include(<stb_image.h>)
 #include <stb_image.h>
-#include <stb_image_write.h>
 #elif __has_include(<stb/stb_image.h>)
 #include <stb/stb_image.h>
-#include <stb/stb_image_write.h>
 #else
-#error "orbitforge/io/image_io.hpp needs stb_image.h and stb_image_write.h (Debian: libstb-dev)"
+#error "orbitforge/io/image_io.hpp needs stb_image.h (Debian: libstb-dev)"
 #endif
 #ifndef ORBITFORGE_NO_STB_IMPLEMENTATION
 #undef STB_IMAGE_IMPLEMENTATION
-#undef STB_IMAGE_WRITE_IMPLEMENTATION
 #endif
 #if defined(__GNUC__)
 #pragma GCC diagnostic pop
@@ -87,10 +81,6 @@ inline std::string lower_extension(const std::string& path) {
   std::string e = path.substr(dot + 1);
   for (char& c : e) c = char(std::tolower(static_cast<unsigned char>(c)));
   return e;
-}
-
-inline void stb_append(void* context, void* data, int size) {
-  static_cast<std::string*>(context)->append(static_cast<const char*>(data), std::size_t(size));
 }
 
 }  // namespace image_io_detail
@@ -257,20 +247,18 @@ template <class T>
 std::string png_bytes(const Image<T>& img) {
   ensure(img.channels >= 1 && img.channels <= 4, "png_bytes: PNG holds 1..4 channels, got ", img.channels);
   ensure(img.width > 0 && img.height > 0, "png_bytes: empty image ", img.width, "x", img.height);
-  std::vector<unsigned char> px(img.data.size());
   if constexpr (std::is_same<T, unsigned char>::value) {
-    px = img.data;
+    return png_encode(img.data.data(), img.width, img.height, img.channels);
   } else {
+    std::vector<unsigned char> px(img.data.size());
     for (std::size_t i = 0; i < px.size(); ++i) {
       const T v = img.data[i];
-      px[i] = v > T(0) ? (v < T(1) ? static_cast<unsigned char>(std::lround(double(v) * 255.0)) : 255) : 0;
+      // v * 255 + 0.5 truncated: std::lround(v * 255) without its call, the
+      // same wherever the sum is exact in double (every float v in (0, 1)).
+      px[i] = v > T(0) ? (v < T(1) ? static_cast<unsigned char>(double(v) * 255.0 + 0.5) : 255) : 0;
     }
+    return png_encode(px.data(), img.width, img.height, img.channels);
   }
-  std::string out;
-  const int ok = stbi_write_png_to_func(&image_io_detail::stb_append, &out, img.width, img.height, img.channels,
-                                        px.data(), img.width * img.channels);
-  ensure(ok != 0, "png_bytes: stb_image_write failed for a ", img.width, "x", img.height, " image");
-  return out;
 }
 
 template <class T>

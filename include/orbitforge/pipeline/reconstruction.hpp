@@ -168,9 +168,10 @@ GaussianScene<Scalar> initial_scene(const PipelineRun<Scalar>& run, const std::v
 }
 
 // Renders `scene` at the rendered canonical views into run.out/folder/NNNN.png
-// and returns the written files (relative to run.out). PNG encoding costs about
-// three renders of a 896x512 view, so views are rendered in batches (the
-// renderer uses every thread) and each batch is encoded on all threads.
+// and returns the written files (relative to run.out). Encoding a PNG costs a
+// good fraction of a render (4-6 ms on one thread at 512x512), so views are
+// rendered in batches (the renderer uses every thread) and each batch is
+// encoded on all threads.
 template <class Scalar>
 std::vector<std::string> render_orbit_views(PipelineRun<Scalar>& run, const GaussianScene<Scalar>& scene,
                                             const std::string& folder, const std::string& label) {
