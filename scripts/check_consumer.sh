@@ -32,14 +32,15 @@ cmake --build "$work/fetch" --target consumer >/dev/null
 
 # Copied headers: orbitforge::core needs -I include -I /usr/include/eigen3 (xsimd
 # is in /usr/include); io/ and pipeline/ add stb and nlohmann-json, also in
-# /usr/include on Debian.
+# /usr/include on Debian, and a program that writes PNG or SPZ links zlib.
 mkdir -p "$work/copy/include"
 cp -r "$root/include/orbitforge" "$work/copy/include/"
 flags=(-std=c++17 -O1 -I "$work/copy/include" -I /usr/include/eigen3 -pthread)
+libs=(-lz)
 mkdir -p "$work/copied"
 "$cxx" "${flags[@]}" "$root/tests/consumer/main.cpp" -o "$work/copied/consumer" &
 "$cxx" "${flags[@]}" "$root/examples/orbit_from_gl.cpp" -o "$work/copied/orbit_from_gl" &
-"$cxx" "${flags[@]}" "$root/examples/host_adaptor.cpp" -o "$work/copied/host_adaptor"
+"$cxx" "${flags[@]}" "$root/examples/host_adaptor.cpp" -o "$work/copied/host_adaptor" "${libs[@]}"
 wait
 run_all "$work/copied"
 
@@ -50,7 +51,7 @@ run_all "$work/copied"
 mkdir -p "$work/nosimd"
 "$cxx" "${flags[@]}" "$root/examples/quick_start.cpp" -o "$work/copied/quick_start" & pid1=$!
 "$cxx" "${flags[@]}" -DORBITFORGE_NO_SIMD "$root/examples/quick_start.cpp" -o "$work/nosimd/quick_start" & pid2=$!
-"$cxx" "${flags[@]}" -DORBITFORGE_NO_SIMD "$root/examples/host_adaptor.cpp" -o "$work/nosimd/host_adaptor" ||
+"$cxx" "${flags[@]}" -DORBITFORGE_NO_SIMD "$root/examples/host_adaptor.cpp" -o "$work/nosimd/host_adaptor" "${libs[@]}" ||
   { echo "check_consumer: host_adaptor does not build with ORBITFORGE_NO_SIMD"; exit 1; }
 wait $pid1 || { echo "check_consumer: quick_start does not build"; exit 1; }
 wait $pid2 || { echo "check_consumer: quick_start does not build with ORBITFORGE_NO_SIMD"; exit 1; }
@@ -78,7 +79,7 @@ PY
 n=0
 for src in "$work"/snippets/snippet*.cpp; do
   if grep -q "int main" "$src"; then
-    "$cxx" "${flags[@]}" "$src" -o "${src%.cpp}" || { echo "check_consumer: README snippet $(basename "$src") does not build"; exit 1; }
+    "$cxx" "${flags[@]}" "$src" -o "${src%.cpp}" "${libs[@]}" || { echo "check_consumer: README snippet $(basename "$src") does not build"; exit 1; }
     "${src%.cpp}" >/dev/null || { echo "check_consumer: README snippet $(basename "$src") fails when run"; exit 1; }
   else
     "$cxx" "${flags[@]}" -c "$src" -o "${src%.cpp}.o" || { echo "check_consumer: README snippet $(basename "$src") does not compile"; exit 1; }
