@@ -245,8 +245,7 @@ Image<T> read_image(const std::string& path) {
 // (NaN writes 0). Image<unsigned char> is written as is.
 template <class T>
 std::string png_bytes(const Image<T>& img) {
-  ensure(img.channels >= 1 && img.channels <= 4, "png_bytes: PNG holds 1..4 channels, got ", img.channels);
-  ensure(img.width > 0 && img.height > 0, "png_bytes: empty image ", img.width, "x", img.height);
+  // png_encode checks the shape (1..4 channels, not empty).
   if constexpr (std::is_same<T, unsigned char>::value) {
     return png_encode(img.data.data(), img.width, img.height, img.channels);
   } else {
