@@ -298,6 +298,24 @@ TEMPLATE_TEST_CASE("hard cases", "[render]", float, double) {
   }
 }
 
+TEST_CASE("a record's tile box: the shift of a power-of-two tile size gives the division's quotients", "[render]") {
+  CHECK(detail::tile_size_shift(1) == 0);
+  CHECK(detail::tile_size_shift(16) == 4);
+  CHECK(detail::tile_size_shift(256) == 8);
+  for (int ts : {0, 3, 5, 12, 24, 255}) CHECK(detail::tile_size_shift(ts) == -1);
+  for (int ts : {1, 2, 5, 8, 16, 24, 64}) {
+    const int shift = detail::tile_size_shift(ts);
+    for (int lo = 0; lo < 300; lo += 7)
+      for (int hi = lo + 1; hi < 320; hi += 13) {
+        SplatRecord<float> rec{};
+        rec.x_lo = float(lo), rec.x_hi = float(hi), rec.y_lo = float(hi - 1), rec.y_hi = float(hi);
+        const std::array<int, 4> box = detail::record_tile_box(rec, ts, shift);
+        INFO("tile " << ts << " lo " << lo << " hi " << hi);
+        CHECK(box == (std::array<int, 4>{{lo / ts, (hi - 1) / ts, (hi - 1) / ts, (hi - 1) / ts}}));
+      }
+  }
+}
+
 TEST_CASE("bin_splats rejects malformed input", "[render]") {
   BinWorkspace<float> bins;
   ProjectedSplats<float> s = random_splats<float>(10, 16, 16, 71);

@@ -357,6 +357,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.rank_offsets.resize(v + 1);  // read (not yet set) by for_each_listed_tile in the counting pass
   const std::size_t tiles = std::size_t(g.tile_count());
   const int tiles_x = g.tiles_x;
+  const int ts_shift = detail::tile_size_shift(ts);
   const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), v / 4096));
   ws.chunk_counts_.assign(chunks * tiles, 0u);
   ws.chunk_entries_.assign(chunks + 1, 0u);
@@ -376,7 +377,7 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
 #endif
       const SplatRecord<Scalar>& rec = ws.packed_[p];
       ws.records[r] = rec;
-      const std::array<int, 4> tb = detail::record_tile_box(rec, ts);
+      const std::array<int, 4> tb = detail::record_tile_box(rec, ts, ts_shift);
       const std::array<std::int32_t, 5> box{{tb[0], tb[1], tb[2], tb[3], detail::record_index(rec)}};
       ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
