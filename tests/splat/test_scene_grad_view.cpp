@@ -70,30 +70,34 @@ TEST_CASE("a DC-only host SH array is not overrun by a higher-degree adaptor", "
 TEST_CASE("a host SH array longer than the adaptor's gets zeros past its coefficients", "[splat][grad_view]") {
   GradViewFixture fx(1, 21);
   const std::size_t n = fx.scene.size();
-  // 16 coefficients per Gaussian, coefficient-major with a padded channel triple
-  // (4 values), then a guard value per Gaussian.
-  constexpr std::size_t kCoef = 4, kPer = 16 * kCoef + 1;
-  std::vector<double> host(n * kPer, kGuard);
-  SceneGradView<double> view;
-  view.size = n;
-  view.sh = strided(host.data(), std::ptrdiff_t(kPer * sizeof(double)));
-  view.sh_coefficients = 16;
-  view.sh_coefficient_stride_bytes = kCoef * sizeof(double);
-  fx.backward_into(view);
-  int nonzero_rest = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double* h = &host[i * kPer];
-    for (std::size_t k = 0; k < 16; ++k) {
-      for (int c = 0; c < 3; ++c) {
-        const double expect = k < 4 ? fx.lib.sh[(4 * i + k) * 3 + std::size_t(c)] : 0.0;
-        REQUIRE(h[kCoef * k + std::size_t(c)] == Approx(expect).margin(1e-12));
-        if (k >= 1 && k < 4 && expect != 0) ++nonzero_rest;
+  // 16 coefficients per Gaussian, coefficient-major, with a padded channel triple
+  // (4 values) or packed (3: the backward copies each Gaussian's run at once),
+  // then a guard value per Gaussian.
+  for (const std::size_t kCoef : {std::size_t(4), std::size_t(3)}) {
+    INFO("values per coefficient " << kCoef);
+    const std::size_t kPer = 16 * kCoef + 1;
+    std::vector<double> host(n * kPer, kGuard);
+    SceneGradView<double> view;
+    view.size = n;
+    view.sh = strided(host.data(), std::ptrdiff_t(kPer * sizeof(double)));
+    view.sh_coefficients = 16;
+    view.sh_coefficient_stride_bytes = kCoef * sizeof(double);
+    fx.backward_into(view);
+    int nonzero_rest = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double* h = &host[i * kPer];
+      for (std::size_t k = 0; k < 16; ++k) {
+        for (int c = 0; c < 3; ++c) {
+          const double expect = k < 4 ? fx.lib.sh[(4 * i + k) * 3 + std::size_t(c)] : 0.0;
+          REQUIRE(h[kCoef * k + std::size_t(c)] == Approx(expect).margin(1e-12));
+          if (k >= 1 && k < 4 && expect != 0) ++nonzero_rest;
+        }
+        if (kCoef == 4) REQUIRE(h[kCoef * k + 3] == kGuard);  // the padding
       }
-      REQUIRE(h[kCoef * k + 3] == kGuard);  // the padding
+      REQUIRE(h[kPer - 1] == kGuard);
     }
-    REQUIRE(h[kPer - 1] == kGuard);
+    REQUIRE(nonzero_rest > 0);
   }
-  REQUIRE(nonzero_rest > 0);
 }
 
 TEST_CASE("unsafe gradient-view layouts are refused by field name before anything is written", "[splat][grad_view]") {

@@ -227,6 +227,8 @@ inline void project_lanes_vjp(const Scene& scene, const ProjectionCamera<typenam
   simd::select(kept & ~(poison <= zero), one, zero).store_unaligned(bad);
 
   const bool xyzw = out.rotation_order == QuatOrder::xyzw;
+  // The channels of consecutive coefficients adjacent (GaussianSceneGrad's layout).
+  const bool sh_packed = out.sh_coefficient_stride_bytes == std::ptrdiff_t(3 * sizeof(Scalar));
   for (int j = 0; j < count; ++j) {
     const std::size_t i = i0 + std::size_t(j);
     Scalar* row = GL.aos[j];
@@ -264,7 +266,11 @@ inline void project_lanes_vjp(const Scene& scene, const ProjectionCamera<typenam
       for (int a = 0; a < 3; ++a) out.log_scales.at(i)[a] = row[GG::kLogScale + a];
     if (out.opacity_logits) *out.opacity_logits.at(i) = row[GG::kLogit];
     if (out.opacities) *out.opacities.at(i) = row[GG::kOpacity];
-    if (out.sh) {
+    if (out.sh && sh_packed) {  // one run per Gaussian: stored a value at a time, it took a third of this pass
+      Scalar* dst = out.sh.at(i);
+      std::copy_n(row + GG::kSh + 3 * want.sh_first, 3 * (want.sh_end - want.sh_first), dst + 3 * want.sh_first);
+      std::fill(dst + 3 * want.sh_end, dst + 3 * want.sh_zero_end, Scalar(0));
+    } else if (out.sh) {
       char* base = reinterpret_cast<char*>(out.sh.at(i));
       for (int k = want.sh_first; k < want.sh_end; ++k) {
         Scalar* dst = reinterpret_cast<Scalar*>(base + std::ptrdiff_t(k) * out.sh_coefficient_stride_bytes);
