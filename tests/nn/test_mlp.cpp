@@ -250,3 +250,95 @@ TEMPLATE_TEST_CASE("mlp: dense kernels and the GEMM path give the same outputs a
   }
   CHECK(maxdiff <= 10 * tol * maxabs);
 }
+
+TEMPLATE_TEST_CASE("mlp: points without an output gradient are left out of the backward", "[nn][mlp]", float, double) {
+  using S = TestType;
+  using M = Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic>;
+  for (int dense_max_width : {64, 0}) {
+    Mlp<S> net(three_head_params(21, 3, 40, 0));
+    net.init(6);
+    net.chunk_columns = 50;  // the live points refill chunks across the gaps
+    net.dense_max_width = dense_max_width;
+    std::mt19937 rng(17);
+    const M x = uniform_matrix<S>(21, 301, rng);
+    M v = uniform_matrix<S>(10, 301, rng);
+    // Zero gradients in runs and singly, at the ends too.
+    std::vector<Eigen::Index> live;
+    for (Eigen::Index j = 0; j < v.cols(); ++j) {
+      const bool zero = j < 7 || (j >= 40 && j < 131) || j % 5 == 3 || j == v.cols() - 1;
+      if (zero) v.col(j).setZero();
+      else live.push_back(j);
+    }
+    // The same points without the zero-gradient ones: one range, so the chunks
+    // hold the same points in the same order and dense.hpp's sums agree to the
+    // bit (Eigen's GEMM may round differently on data at another alignment).
+    M x_live(x.rows(), Eigen::Index(live.size())), v_live(v.rows(), Eigen::Index(live.size()));
+    for (std::size_t c = 0; c < live.size(); ++c) {
+      x_live.col(Eigen::Index(c)) = x.col(live[c]);
+      v_live.col(Eigen::Index(c)) = v.col(live[c]);
+    }
+    auto run = [&](const M& in, const M& v_in, M& v_x) {
+      typename Mlp<S>::Workspace ws;
+      M y;
+      net.forward(in, ws, y, 1);
+      std::vector<S> g(net.parameter_count(), S(0));
+      net.backward(in, ws, v_in, g.data(), &v_x, 1);
+      return g;
+    };
+    M v_x, v_x_live;
+    const auto g = run(x, v, v_x), g_live = run(x_live, v_live, v_x_live);
+    INFO("dense_max_width " << dense_max_width);
+    const double tol = dense_max_width > 0 ? 0.0 : (std::is_same<S, float>::value ? 1e-6 : 1e-14);
+    double g_diff = 0, g_max = 0, x_diff = 0;
+    for (std::size_t k = 0; k < g.size(); ++k) {
+      g_diff = std::max(g_diff, double(std::abs(g[k] - g_live[k])));
+      g_max = std::max(g_max, double(std::abs(g_live[k])));
+    }
+    for (std::size_t c = 0; c < live.size(); ++c)
+      x_diff = std::max(x_diff, double((v_x.col(live[c]) - v_x_live.col(Eigen::Index(c))).cwiseAbs().maxCoeff()));
+    CHECK(g_diff <= tol * g_max);
+    CHECK(x_diff <= tol * (1 + double(v_x_live.cwiseAbs().maxCoeff())));
+    M v_x_dead = v_x;
+    for (Eigen::Index j : live) v_x_dead.col(j).setZero();
+    CHECK(v_x_dead.isZero(0));
+    // A NaN gradient is not taken for zero: it reaches the parameters.
+    M v_nan = v;
+    v_nan(2, 0) = std::numeric_limits<S>::quiet_NaN();
+    M v_x_nan;
+    const auto g_nan = run(x, v_nan, v_x_nan);
+    CHECK(std::any_of(g_nan.begin(), g_nan.end(), [](S a) { return std::isnan(a); }));
+    // Two ranges: the same gradients up to rounding.
+    typename Mlp<S>::Workspace ws2;
+    M y2, v_x2;
+    net.forward(x, ws2, y2, 2);
+    std::vector<S> g2(net.parameter_count(), S(0));
+    net.backward(x, ws2, v, g2.data(), &v_x2, 2);
+    double maxdiff = 0, maxabs = 0;
+    for (std::size_t k = 0; k < g.size(); ++k) {
+      maxdiff = std::max(maxdiff, double(std::abs(g2[k] - g[k])));
+      maxabs = std::max(maxabs, double(std::abs(g[k])));
+    }
+    CHECK(maxdiff <= (std::is_same<S, float>::value ? 1e-5 : 1e-12) * maxabs);
+    CHECK((v_x2 - v_x).cwiseAbs().maxCoeff() <= (std::is_same<S, float>::value ? 1e-5 : 1e-12) * (1 + v_x.cwiseAbs().maxCoeff()));
+  }
+}
+
+TEMPLATE_TEST_CASE("mlp: forward rejects a non-finite input and names its points", "[nn][mlp]", float, double) {
+  using S = TestType;
+  using M = Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic>;
+  Mlp<S> net(three_head_params(21, 2, 16, -1));
+  net.init(2);
+  net.chunk_columns = 40;
+  std::mt19937 rng(5);
+  const M x = uniform_matrix<S>(21, 100, rng);
+  typename Mlp<S>::Workspace ws;
+  M y;
+  REQUIRE_NOTHROW(net.forward(M(x * S(1e30)), ws, y, 2));  // large but finite
+  for (const S bad : {std::numeric_limits<S>::quiet_NaN(), std::numeric_limits<S>::infinity(),
+                      -std::numeric_limits<S>::infinity()}) {
+    M xb = x;
+    xb(20, 57) = bad;
+    CHECK_THROWS_WITH(net.forward(xb, ws, y, 1), Catch::Contains("non-finite values (points 40 to 79)"));
+    CHECK_THROWS_WITH(net.forward(xb, ws, y, 2), Catch::Contains("non-finite values (points 50 to 89)"));
+  }
+}
