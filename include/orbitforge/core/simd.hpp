@@ -13,7 +13,7 @@
 //   + - * / (and += -= *= /=), unary + and -, comparisons < <= > >= == != giving M,
 //   masks combine with & | ^ ~ (and && || !, == !=) as xsimd::batch_bool does (not
 //   &= |= ^=: xsimd 8.1 declares them const and they do not compile),
-//   fma(x, y, z) = x*y+z, exp, log, exp2_nonpositive, min, max, abs, sqrt, ceil, floor,
+//   fma(x, y, z) = x*y+z, exp, log, exp2_nonpositive, sin, cos, min, max, abs, sqrt, ceil, floor,
 //   select(m, a, b),
 //   hadd(b) (sum of lanes; xsimd 8.1 has hadd, not reduce_add), any(m), all(m),
 //   mask_bits(m) (lane i's flag at bit i, up to 64 lanes),
@@ -89,6 +89,8 @@ struct scalar_batch {
 template <class T> inline scalar_batch<T> fma(scalar_batch<T> x, scalar_batch<T> y, scalar_batch<T> z) { return std::fma(x.v, y.v, z.v); }
 template <class T> inline scalar_batch<T> exp(scalar_batch<T> x) { return std::exp(x.v); }
 template <class T> inline scalar_batch<T> log(scalar_batch<T> x) { return std::log(x.v); }
+template <class T> inline scalar_batch<T> sin(scalar_batch<T> x) { return std::sin(x.v); }
+template <class T> inline scalar_batch<T> cos(scalar_batch<T> x) { return std::cos(x.v); }
 template <class T> inline scalar_batch<T> ceil(scalar_batch<T> x) { return std::ceil(x.v); }
 template <class T> inline scalar_batch<T> floor(scalar_batch<T> x) { return std::floor(x.v); }
 template <class T> inline scalar_batch<T> min(scalar_batch<T> x, scalar_batch<T> y) { return y.v < x.v ? y.v : x.v; }
@@ -120,6 +122,8 @@ template <class T, class A> inline xsimd::batch<T, A> fma(const xsimd::batch<T, 
 }
 template <class T, class A> inline xsimd::batch<T, A> exp(const xsimd::batch<T, A>& x) { return xsimd::exp(x); }
 template <class T, class A> inline xsimd::batch<T, A> log(const xsimd::batch<T, A>& x) { return xsimd::log(x); }
+template <class T, class A> inline xsimd::batch<T, A> sin(const xsimd::batch<T, A>& x) { return xsimd::sin(x); }
+template <class T, class A> inline xsimd::batch<T, A> cos(const xsimd::batch<T, A>& x) { return xsimd::cos(x); }
 template <class T, class A> inline xsimd::batch<T, A> ceil(const xsimd::batch<T, A>& x) { return xsimd::ceil(x); }
 template <class T, class A> inline xsimd::batch<T, A> floor(const xsimd::batch<T, A>& x) { return xsimd::floor(x); }
 template <class T, class A> inline xsimd::batch<T, A> min(const xsimd::batch<T, A>& x, const xsimd::batch<T, A>& y) { return xsimd::min(x, y); }
