@@ -73,37 +73,6 @@ void BM_DeformForwardBackward(benchmark::State& state) {
   }
 }
 
-// The default field's vjp alone when a share of the points has no gradient (the
-// Gaussians a training frame does not render: about a third), at random points.
-// Args: threads, percent of points without a gradient.
-void BM_DeformVjpUnrendered(benchmark::State& state) {
-  DeformationField<float> f(DeformationFieldParams::fast());
-  const int threads = int(state.range(0));
-  const auto x = random_means(kPoints);
-  typename DeformationField<float>::Workspace ws;
-  DeformationOffsets<float> off, v;
-  v.resize(kPoints);
-  v.dx.setConstant(1e-3f);
-  v.dq.setConstant(-1e-3f);
-  v.ds.setConstant(2e-3f);
-  std::mt19937 rng(7);
-  std::uniform_int_distribution<int> percent(0, 99);
-  for (Eigen::Index j = 0; j < kPoints; ++j)
-    if (percent(rng) < state.range(1)) {
-      v.dx.col(j).setZero();
-      v.dq.col(j).setZero();
-      v.ds.col(j).setZero();
-    }
-  std::vector<float> g(f.parameter_count());
-  f.evaluate(x, 0.4f, ws, off, threads);
-  f.evaluate_vjp(ws, v, g.data(), nullptr, threads);  // warm-up
-  for (auto _ : state) {
-    std::fill(g.begin(), g.end(), 0.f);
-    f.evaluate_vjp(ws, v, g.data(), nullptr, threads);
-    benchmark::DoNotOptimize(g.data());
-  }
-}
-
 void field_args(benchmark::internal::Benchmark* b) {
   b->ArgNames({"depth", "width", "skip", "threads", "chunk"});
   // The published network, then candidates for the CPU default.
@@ -168,12 +137,6 @@ void BM_MedianBake(benchmark::State& state) {
 
 BENCHMARK(BM_DeformForward)->Apply(field_args);
 BENCHMARK(BM_DeformForwardBackward)->Apply(field_args);
-BENCHMARK(BM_DeformVjpUnrendered)
-    ->ArgNames({"threads", "unrendered"})
-    ->ArgsProduct({{1, 2}, {0, 33}})
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime()
-    ->UseRealTime();
 BENCHMARK(BM_LayoutColumns)->Arg(64)->Arg(256)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_LayoutRows)->Arg(64)->Arg(256)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_MedianBake)->Args({4, 64, -1})->Unit(benchmark::kMillisecond)->Iterations(1)->MeasureProcessCPUTime()->UseRealTime();

@@ -23,18 +23,11 @@
 // each, processed in column chunks of `chunk_columns`. Parameter gradients are
 // accumulated per RANGE (not per worker) and summed in a fixed order, so results
 // are bitwise reproducible for a given thread count.
-//
-// Points whose output gradient is zero (a Gaussian the frame did not render
-// gets none) add nothing to any gradient: backward() leaves them out, gathering
-// the other points of a range into full chunks, so its cost follows the points
-// that have a gradient (a third of the deformation field's Gaussians have none
-// in a typical training frame). Their input gradient is zero.
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <numeric>
-#include <optional>
 #include <random>
 #include <vector>
 
@@ -71,17 +64,9 @@ class Mlp {
   struct Workspace {
     std::vector<Matrix> hidden;  // depth x [width x N], post-ReLU
     Eigen::Index points = 0;
-    struct RangeScratch {
-      Matrix a, b;                    // [width x chunk] gradients through the layers
-      std::vector<Scalar> grads;      // [parameter_count] the range's parameter gradients
-      std::vector<Scalar> outer;      // dense_accumulate_outer's
-      std::vector<Eigen::Index> live; // the range's points with a nonzero output gradient
-      // Those points gathered, a chunk at a time, when some are left out.
-      Matrix x, v_out, v_input;       // [input_dims | output_dims | input_dims x chunk]
-      std::vector<Matrix> hidden;     // depth x [width x chunk]
-      std::vector<const Scalar*> hidden_columns;  // the chunk's first column of each layer
-    };
-    std::vector<RangeScratch> ranges;  // per range of backward()
+    std::vector<Matrix> scratch_a, scratch_b;              // per range: [width x chunk]
+    std::vector<std::vector<Scalar>> range_grads;         // per range: [parameter_count]
+    std::vector<std::vector<Scalar>> outer_scratch;       // per range: dense_accumulate_outer's
     // The layers' weights laid out for dense_forward, set at each call: W_i and b_i
     // for the forward; W_i^T (the skip layer: its h_{i-1} columns, transposed) and
     // the heads' W^T for the backward (index depth), layer 0's unused.
@@ -214,7 +199,9 @@ class Mlp {
     if (v_input && (v_input->rows() != p_.input_dims || v_input->cols() != n)) v_input->resize(p_.input_dims, n);
     const int ranges = range_count(n, threads);
     const Eigen::Index chunk = std::min<Eigen::Index>(chunk_columns, std::max<Eigen::Index>(n, 1));
-    ws.ranges.resize(std::size_t(ranges));
+    ws.scratch_a.resize(std::size_t(ranges));
+    ws.scratch_b.resize(std::size_t(ranges));
+    ws.outer_scratch.resize(std::size_t(ranges));
     ws.backward_weights.resize(dense_kernels() ? layers_.size() : 0);
     for (std::size_t i = 1; i < ws.backward_weights.size(); ++i) {
       const Layer& l = layers_[i];
@@ -224,42 +211,28 @@ class Mlp {
                                                     l.rows, l.cols - in_cols, l.rows, true, nullptr);
     }
     // With one range the gradients go straight into v_params (still accumulated).
+    if (ranges > 1) ws.range_grads.resize(std::size_t(ranges));
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
-      typename Workspace::RangeScratch& rs = ws.ranges[r];
+      Matrix& a = ws.scratch_a[r];
+      Matrix& b = ws.scratch_b[r];
       const Eigen::Index rows = std::max(p_.width, output_dims());
-      if (rs.a.rows() != rows || rs.a.cols() != chunk) rs.a.resize(rows, chunk);
-      if (rs.b.rows() != rows || rs.b.cols() != chunk) rs.b.resize(rows, chunk);
+      if (a.rows() != rows || a.cols() != chunk) a.resize(rows, chunk);
+      if (b.rows() != rows || b.cols() != chunk) b.resize(rows, chunk);
       Scalar* g = v_params;
       if (ranges > 1) {
-        rs.grads.assign(params_.size(), Scalar(0));
-        g = rs.grads.data();
+        ws.range_grads[r].assign(params_.size(), Scalar(0));
+        g = ws.range_grads[r].data();
       }
       const auto [begin, end] = range(n, ranges, int(r));
-      // NaN != 0: a NaN gradient is kept and reaches the parameters as before.
-      rs.live.clear();
-      for (Eigen::Index j = begin; j < end; ++j)
-        if ((v_out.col(j).array() != Scalar(0)).any()) rs.live.push_back(j);
-      if (Eigen::Index(rs.live.size()) == end - begin) {
-        for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
-          const Eigen::Index m = std::min(chunk_columns, end - c0);
-          const ChunkColumns cols = chunk_columns_of(input, ws, v_out, v_input, c0, rs);
-          backward_chunk(ws, cols, m, g, rs);
-        }
-        return;
-      }
-      if (v_input) v_input->middleCols(begin, end - begin).setZero();
-      for (std::size_t k0 = 0; k0 < rs.live.size(); k0 += std::size_t(chunk)) {
-        const Eigen::Index m = std::min<Eigen::Index>(chunk, Eigen::Index(rs.live.size() - k0));
-        const ChunkColumns cols = gather_columns(input, ws, v_out, v_input != nullptr, rs.live.data() + k0, m, rs);
-        backward_chunk(ws, cols, m, g, rs);
-        if (v_input)
-          for (Eigen::Index c = 0; c < m; ++c) v_input->col(rs.live[k0 + std::size_t(c)]) = rs.v_input.col(c);
+      for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
+        const Eigen::Index m = std::min(chunk_columns, end - c0);
+        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r]);
       }
     });
     if (ranges > 1) {
       Eigen::Map<Vector> total(v_params, Eigen::Index(params_.size()));
       for (int r = 0; r < ranges; ++r)
-        total += Eigen::Map<const Vector>(ws.ranges[std::size_t(r)].grads.data(), Eigen::Index(params_.size()));
+        total += Eigen::Map<const Vector>(ws.range_grads[std::size_t(r)].data(), Eigen::Index(params_.size()));
     }
   }
 
@@ -354,74 +327,28 @@ class Mlp {
     }
   }
 
-  // A chunk's columns of the backward's inputs and of its input gradient (if
-  // wanted): in place, or gathered into a range's scratch. Leading dimensions
-  // are the matrices' row counts.
-  struct ChunkColumns {
-    const Scalar* x;
-    const Scalar* const* hidden;  // per layer
-    const Scalar* v_out;
-    Scalar* v_input;  // nullptr: not wanted
-  };
-
-  ChunkColumns chunk_columns_of(const Matrix& input, const Workspace& ws, const Matrix& v_out, Matrix* v_input,
-                                Eigen::Index c0, typename Workspace::RangeScratch& rs) const {
-    rs.hidden_columns.resize(ws.hidden.size());
-    for (std::size_t i = 0; i < ws.hidden.size(); ++i) rs.hidden_columns[i] = ws.hidden[i].data() + c0 * p_.width;
-    return {input.data() + c0 * input.rows(), rs.hidden_columns.data(), v_out.data() + c0 * v_out.rows(),
-            v_input ? v_input->data() + c0 * v_input->rows() : nullptr};
-  }
-
-  ChunkColumns gather_columns(const Matrix& input, const Workspace& ws, const Matrix& v_out, bool want_v_input,
-                              const Eigen::Index* cols, Eigen::Index m,
-                              typename Workspace::RangeScratch& rs) const {
-    const Eigen::Index chunk = rs.a.cols();
-    auto fit = [chunk](Matrix& a, Eigen::Index rows) {
-      if (a.rows() != rows || a.cols() != chunk) a.resize(rows, chunk);
-    };
-    fit(rs.x, input.rows());
-    fit(rs.v_out, v_out.rows());
-    if (want_v_input) fit(rs.v_input, input.rows());
-    rs.hidden.resize(ws.hidden.size());
-    for (std::size_t i = 0; i < ws.hidden.size(); ++i) fit(rs.hidden[i], p_.width);
-    for (Eigen::Index c = 0; c < m; ++c) {
-      const Eigen::Index j = cols[c];
-      rs.x.col(c) = input.col(j);
-      rs.v_out.col(c) = v_out.col(j);
-      for (std::size_t i = 0; i < ws.hidden.size(); ++i) rs.hidden[i].col(c) = ws.hidden[i].col(j);
-    }
-    rs.hidden_columns.resize(rs.hidden.size());
-    for (std::size_t i = 0; i < rs.hidden.size(); ++i) rs.hidden_columns[i] = rs.hidden[i].data();
-    return {rs.x.data(), rs.hidden_columns.data(), rs.v_out.data(), want_v_input ? rs.v_input.data() : nullptr};
-  }
-
-  void backward_chunk(const Workspace& ws, const ChunkColumns& cols, Eigen::Index m, Scalar* g,
-                      typename Workspace::RangeScratch& rs) const {
-    const Eigen::Index in_rows = p_.input_dims, width = p_.width, out_rows = output_dims();
-    const Scalar* x = cols.x;
-    auto hidden = [&](int i) { return cols.hidden[std::size_t(i)]; };
-    std::vector<Scalar>& outer = rs.outer;
+  void backward_chunk(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
+                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb, std::vector<Scalar>& outer) const {
+    const Eigen::Index in_rows = input.rows(), width = p_.width;
+    const Scalar* x = input.data() + c0 * in_rows;
+    auto hidden = [&](int i) { return ws.hidden[std::size_t(i)].data() + c0 * width; };
     // Heads.
     {
       const Layer& l = layers_.back();
       Eigen::Map<Vector> gb(g + l.b, l.rows);
-      const Scalar* vy = cols.v_out;
-      weight_gradient(g + l.w, l.rows, l.rows, l.cols, vy, out_rows, hidden(p_.depth - 1), width, m, outer);
-      add_column_sum(ConstMatrixMap(vy, out_rows, m), gb);
-      back_through(ws, p_.depth, vy, out_rows, m, rs.a);  // v_h_{depth-1}
+      const Scalar* vy = v_out.data() + c0 * v_out.rows();
+      weight_gradient(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m, outer);
+      add_column_sum(v_out.middleCols(c0, m), gb);
+      back_through(ws, p_.depth, vy, v_out.rows(), m, sa);  // v_h_{depth-1}
     }
-    std::optional<MatrixMap> v_input;
-    if (cols.v_input) {
-      v_input.emplace(cols.v_input, in_rows, m);
-      v_input->setZero();
-    }
-    Matrix* cur = &rs.a;
-    Matrix* nxt = &rs.b;
+    if (v_input) v_input->middleCols(c0, m).setZero();
+    Matrix* cur = &sa;
+    Matrix* nxt = &sb;
     for (int i = p_.depth - 1; i >= 0; --i) {
       const Layer& l = layers_[std::size_t(i)];
       Eigen::Map<Vector> gb(g + l.b, l.rows);
       auto dz = cur->topLeftCorner(width, m);
-      const ConstMatrixMap h(hidden(i), width, m);
+      const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
       // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
       dz.array() = (h.array() > Scalar(0)).select(dz.array(), Scalar(0));
       add_column_sum(dz, gb);
@@ -432,7 +359,7 @@ class Mlp {
         weight_gradient(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer);
         if (v_input) {
           ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-          v_input->noalias() += w.leftCols(p_.input_dims).transpose() * dz;
+          v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
         }
         if (i == 0) break;
       }
