@@ -49,23 +49,35 @@ TEMPLATE_TEST_CASE("dense kernels: forward and outer product against loops in do
           REQUIRE(dw.ld % L == 0);
           const DenseTerm<S> terms[2] = {{dw.column(0), dw.ld, k1, x1.data(), ldx1},
                                          {dw.column(k1), dw.ld, k2, x2.data(), ldx2}};
-          for (bool relu : {false, true}) {
+          // A gate with zeros, negatives and positives, leading dimension larger than rows.
+          const int ldgate = rows + 1;
+          auto gate = random_values<S>(std::size_t(ldgate * m), rng);
+          for (std::size_t q = 0; q < gate.size(); q += 5) gate[q] = S(0);
+          for (bool relu : {false, true})
+            for (bool gated : {false, true}) {
             std::vector<S> z(std::size_t(ldz * m), S(-7));
-            dense_forward<B>(rows, terms, 2, dw.b.data(), m, z.data(), ldz, relu);  // k2 0: an empty last term
+            // k2 0: an empty last term
+            dense_forward<B>(rows, terms, 2, dw.b.data(), m, z.data(), ldz, relu, gated ? gate.data() : nullptr, ldgate);
             double err = 0;
-            bool untouched = true;
+            bool untouched = true, gated_zero = true;
             for (int j = 0; j < m; ++j) {
               for (int r = 0; r < rows; ++r) {
                 double s = double(bias[std::size_t(r)]);
                 for (int k = 0; k < k1; ++k) s += double(w1[std::size_t(k * rows + r)]) * double(x1[std::size_t(j * ldx1 + k)]);
                 for (int k = 0; k < k2; ++k) s += double(w2[std::size_t(k * rows + r)]) * double(x2[std::size_t(j * ldx2 + k)]);
                 if (relu) s = std::max(s, 0.0);
+                const bool shut = gated && !(gate[std::size_t(j * ldgate + r)] > S(0));
+                if (shut) {
+                  gated_zero = gated_zero && z[std::size_t(j * ldz + r)] == S(0);
+                  s = 0;
+                }
                 err = std::max(err, std::abs(s - double(z[std::size_t(j * ldz + r)])) / (1 + std::abs(s)));
               }
               for (int r = rows; r < ldz; ++r) untouched = untouched && z[std::size_t(j * ldz + r)] == S(-7);
             }
             CHECK(err <= tol * (k1 + k2 + 1));
             CHECK(untouched);  // rows past `rows` are not written
+            CHECK(gated_zero);  // exactly 0 where the gate is shut
           }
           // G (rows x k1) += D H^T over m columns; G's leading dimension larger than rows.
           const int ldg = rows + 1, ldd = rows + 2;
@@ -73,8 +85,20 @@ TEMPLATE_TEST_CASE("dense kernels: forward and outer product against loops in do
           auto g = random_values<S>(std::size_t(ldg * k1), rng);
           const auto g0 = g;
           std::vector<S> scratch;
-          dense_accumulate_outer<B>(g.data(), ldg, rows, k1, d.data(), ldd, x1.data(), ldx1, m, scratch);
-          double err = 0;
+          auto sums = random_values<S>(std::size_t(rows), rng);
+          const auto sums0 = sums;
+          dense_accumulate_outer<B>(g.data(), ldg, rows, k1, d.data(), ldd, x1.data(), ldx1, m, scratch, sums.data());
+          double err = 0, sum_err = 0;
+          for (int r = 0; r < rows; ++r) {
+            double s = double(sums0[std::size_t(r)]);
+            for (int j = 0; j < m; ++j) s += double(d[std::size_t(j * ldd + r)]);
+            sum_err = std::max(sum_err, std::abs(s - double(sums[std::size_t(r)])) / (1 + std::abs(s)));
+          }
+          CHECK(sum_err <= tol * (m + 1));
+          // Without sums the products are the same.
+          auto g2 = g0;
+          dense_accumulate_outer<B>(g2.data(), ldg, rows, k1, d.data(), ldd, x1.data(), ldx1, m, scratch);
+          CHECK(g2 == g);
           bool untouched = true;
           for (int c = 0; c < k1; ++c) {
             for (int r = 0; r < rows; ++r) {

@@ -270,3 +270,65 @@ TEMPLATE_TEST_CASE("mlp: forward rejects a non-finite input and names its points
     CHECK_THROWS_WITH(net.forward(xb, ws, y, 2), Catch::Contains("non-finite values (points 50 to 89)"));
   }
 }
+
+// The shared rows given once must act as the same rows in every column: equal
+// outputs and gradients (the shared weights' gradient included) to the network
+// fed the whole input, with and without the skip, dense kernels and the GEMM
+// path, one and two threads.
+TEMPLATE_TEST_CASE("mlp: shared input rows act as the same rows in every column", "[nn][mlp]", float, double) {
+  using S = TestType;
+  using M = Eigen::Matrix<S, Eigen::Dynamic, Eigen::Dynamic>;
+  constexpr int kIn = 21, kShared = 5, kPoints = 333;
+  std::mt19937 rng(13);
+  const M x_points = uniform_matrix<S>(kIn - kShared, kPoints, rng), v = uniform_matrix<S>(10, kPoints, rng);
+  const M shared = uniform_matrix<S>(kShared, 1, rng);
+  M x_whole(kIn, kPoints);
+  x_whole << x_points, shared.replicate(1, kPoints);
+  const double tol = std::is_same<S, float>::value ? 1e-5 : 1e-12;
+  for (int skip : {-1, 1})
+    for (int dense_max_width : {64, 0})
+      for (int threads : {1, 2}) {
+        INFO("skip " << skip << ", dense_max_width " << dense_max_width << ", threads " << threads);
+        MlpParams pw = three_head_params(kIn, 3, 40, skip), ps = pw;
+        ps.shared_input_dims = kShared;
+        Mlp<S> whole(pw), split(ps);
+        whole.init(4);
+        split.parameters() = whole.parameters();
+        REQUIRE(split.point_input_dims() == kIn - kShared);
+        for (Mlp<S>* net : {&whole, &split}) {
+          net->chunk_columns = 100;
+          net->dense_max_width = dense_max_width;
+        }
+        typename Mlp<S>::Workspace ws_w, ws_s;
+        M y_w, y_s, vx_w, vx_s;
+        whole.forward(x_whole, ws_w, y_w, threads);
+        split.forward(x_points, ws_s, y_s, threads, shared.data());
+        CHECK((y_w - y_s).cwiseAbs().maxCoeff() <= tol * (1 + y_w.cwiseAbs().maxCoeff()));
+        std::vector<S> g_w(whole.parameter_count(), S(0)), g_s(split.parameter_count(), S(0));
+        whole.backward(x_whole, ws_w, v, g_w.data(), &vx_w, threads);
+        split.backward(x_points, ws_s, v, g_s.data(), &vx_s, threads);
+        REQUIRE(vx_s.rows() == kIn - kShared);
+        CHECK((vx_w.topRows(kIn - kShared) - vx_s).cwiseAbs().maxCoeff() <= tol * (1 + vx_w.cwiseAbs().maxCoeff()));
+        double maxdiff = 0, maxabs = 0;
+        for (std::size_t k = 0; k < g_w.size(); ++k) {
+          maxdiff = std::max(maxdiff, double(std::abs(g_w[k] - g_s[k])));
+          maxabs = std::max(maxabs, double(std::abs(g_w[k])));
+        }
+        CHECK(maxabs > 0);
+        CHECK(maxdiff <= 10 * tol * maxabs);
+      }
+  // The shared rows are required exactly when the network has them, and finite.
+  MlpParams ps = three_head_params(kIn, 2, 16, -1);
+  ps.shared_input_dims = kShared;
+  Mlp<S> net(ps);
+  net.init(1);
+  typename Mlp<S>::Workspace ws;
+  M y;
+  CHECK_THROWS_WITH(net.forward(x_points, ws, y, 1), Catch::Contains("5 shared input rows, and they were not given"));
+  M bad = shared;
+  bad(2) = std::numeric_limits<S>::quiet_NaN();
+  CHECK_THROWS_WITH(net.forward(x_points, ws, y, 1, bad.data()), Catch::Contains("shared input contains non-finite"));
+  CHECK_THROWS_WITH(net.forward(x_whole, ws, y, 1, shared.data()), Catch::Contains("input has 21 rows, expected 16"));
+  ps.shared_input_dims = kIn;
+  CHECK_THROWS_WITH(Mlp<S>(ps), Catch::Contains("shared_input_dims 21 must be in [0, input_dims)"));
+}

@@ -131,11 +131,13 @@ class DeformationField {
   using Matrix = Eigen::Matrix<Scalar, Eigen::Dynamic, Eigen::Dynamic>;
   static constexpr int kOutputs = 10;  // dx 3, dq 4, ds 3
 
+  // The time code's encoding is the same for every point: it goes to the network
+  // once per call as its shared input (nn/mlp.hpp), not as 13 rows per column.
   struct Workspace {
-    Matrix input;    // [in_dims x N] encodings (kept for the vjp)
+    Matrix input;    // [x_dims x N] the means' encodings (kept for the vjp)
     Matrix out;      // [10 x N]
     Matrix v_out;    // [10 x N]
-    Matrix v_input;  // [in_dims x N]
+    Matrix v_input;  // [x_dims x N]
     typename Mlp<Scalar>::Workspace mlp;
   };
 
@@ -171,10 +173,10 @@ class DeformationField {
                 DeformationOffsets<Scalar>& out, int threads = 0) const {
     ensure(std::isfinite(t), "DeformationField::evaluate: time code is not finite");
     const Eigen::Index n = means.cols();
-    if (ws.input.rows() != input_dims() || ws.input.cols() != n) ws.input.resize(input_dims(), n);
+    const int xr = x_enc_.output_dims();
+    if (ws.input.rows() != xr || ws.input.cols() != n) ws.input.resize(xr, n);
     Eigen::Matrix<Scalar, Eigen::Dynamic, 1> tcode(t_enc_.output_dims());
     t_enc_.encode(Eigen::Matrix<Scalar, 1, 1>::Constant(t), tcode);
-    const int xr = x_enc_.output_dims();
     const int ranges = int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(resolve_threads(threads), n / 2048)));
     const bool identity = unit_ == Scalar(1) && center_.isZero();
     const Scalar inv_unit = Scalar(1) / unit_;
@@ -182,13 +184,11 @@ class DeformationField {
       const Eigen::Index b = n * Eigen::Index(r) / ranges, e = n * Eigen::Index(r + 1) / ranges;
       if (identity) {
         x_enc_.encode(means.middleCols(b, e - b), ws.input.middleCols(b, e - b), 0);
-      } else {
-        const Matrix3X<Scalar> xn = (means.middleCols(b, e - b).colwise() - center_) * inv_unit;
-        x_enc_.encode(xn, ws.input.middleCols(b, e - b), 0);
+      } else {  // x_n as an expression: a copy of the means would be a fresh 12 bytes a point per call
+        x_enc_.encode((means.middleCols(b, e - b).colwise() - center_) * inv_unit, ws.input.middleCols(b, e - b), 0);
       }
-      ws.input.block(xr, b, t_enc_.output_dims(), e - b).colwise() = tcode;
     });
-    mlp_.forward(ws.input, ws.mlp, ws.out, threads);
+    mlp_.forward(ws.input, ws.mlp, ws.out, threads, tcode.data());
     out.resize(n);
     out.scale_offset = p_.scale_offset;
     out.dx = ws.out.topRows(3) * unit_;
@@ -278,6 +278,7 @@ class DeformationField {
     m.width = p.width;
     m.skip_layer = p.skip_layer;
     m.head_dims = {3, 4, 3};
+    m.shared_input_dims = 1 + 2 * p.t_frequencies;  // the time code's rows, last
     return m;
   }
 

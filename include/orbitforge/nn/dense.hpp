@@ -5,7 +5,8 @@
 // mlp.hpp gives those to Eigen's GEMM):
 //
 //   dense_forward           Z = act(W1 X1 + W2 X2 + b)   W R x K, X K x m, Z R x m
-//   dense_accumulate_outer  G += D H^T                    G R x K, D R x m, H K x m
+//                           (act: none, ReLU, or a gate: Z zero where a mask <= 0)
+//   dense_accumulate_outer  G += D H^T, s += D 1          G R x K, D R x m, H K x m
 //
 // All column-major. A block of W's rows stays in registers while the columns of
 // X stream by: no packed copy of X and no zero fill of Z, which a general GEMM
@@ -13,6 +14,9 @@
 // these sizes (bench_mlp). dense_forward's columns are independent sums in a
 // fixed order, so they do not depend on how the columns are split between
 // calls; dense_accumulate_outer adds its columns in order, 128 at a time.
+// The gate and the row sums are the backward's ReLU mask and bias gradient,
+// done while the values are in registers: as separate passes over the chunk
+// they had cost as much as a tenth of the field's backward.
 #include <Eigen/Core>
 #include <algorithm>
 #include <cstddef>
@@ -79,7 +83,7 @@ template <class B, int NB, int NC>
 [[gnu::noinline]] void dense_forward_block(Eigen::Index rows, Eigen::Index row0, const DenseTerm<typename B::value_type>& term,
                                 Eigen::Index k0, Eigen::Index k1, bool first, bool last,
                                 const typename B::value_type* bias, Eigen::Index j, typename B::value_type* z,
-                                Eigen::Index ldz, bool relu) {
+                                Eigen::Index ldz, bool relu, const typename B::value_type* gate, Eigen::Index ldgate) {
   using S = typename B::value_type;
   constexpr Eigen::Index L = Eigen::Index(B::size);
   B acc[NB][NC];
@@ -109,8 +113,20 @@ template <class B, int NB, int NC>
   }
   for (int c = 0; c < NC; ++c)
     for (int b = 0; b < NB; ++b) {
-      const B v = last && relu ? simd::max(acc[b][c], B(S(0))) : acc[b][c];
       const Eigen::Index r = row0 + b * L;
+      B v = last && relu ? simd::max(acc[b][c], B(S(0))) : acc[b][c];
+      if (last && gate) {
+        const S* gsrc = gate + (j + c) * ldgate + r;
+        B gv;
+        if (r + L <= rows) {
+          gv = B::load_unaligned(gsrc);
+        } else {
+          S lanes[L] = {};
+          std::copy_n(gsrc, rows - r, lanes);
+          gv = B::load_unaligned(lanes);
+        }
+        v = simd::select(gv > B(S(0)), v, B(S(0)));
+      }
       S* dst = z + (j + c) * ldz + r;
       if (r + L <= rows) {
         v.store_unaligned(dst);
@@ -128,7 +144,8 @@ template <class B, int NB, int NC>
 template <class B, int NB>
 inline void dense_forward_rows(Eigen::Index rows, Eigen::Index row0, const DenseTerm<typename B::value_type>* terms,
                                int n_terms, const typename B::value_type* bias, Eigen::Index m,
-                               typename B::value_type* z, Eigen::Index ldz, bool relu) {
+                               typename B::value_type* z, Eigen::Index ldz, bool relu,
+                               const typename B::value_type* gate, Eigen::Index ldgate) {
   constexpr int NC = dense_column_group<B>();
   constexpr Eigen::Index panel =
       std::max<Eigen::Index>(8, 16384 / Eigen::Index(NB * B::size * sizeof(typename B::value_type)));
@@ -142,8 +159,9 @@ inline void dense_forward_rows(Eigen::Index rows, Eigen::Index row0, const Dense
       const bool last = t == last_term && k1 == terms[t].cols;
       Eigen::Index j = 0;
       for (; j + NC <= m; j += NC)
-        dense_forward_block<B, NB, NC>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu);
-      for (; j < m; ++j) dense_forward_block<B, NB, 1>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu);
+        dense_forward_block<B, NB, NC>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu, gate, ldgate);
+      for (; j < m; ++j)
+        dense_forward_block<B, NB, 1>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu, gate, ldgate);
       first = false;
       k0 = k1;
     } while (k0 < terms[t].cols);
@@ -151,21 +169,26 @@ inline void dense_forward_rows(Eigen::Index rows, Eigen::Index row0, const Dense
 }
 
 // G (rows [row0, row0 + NB L), columns [k0, k0 + NC)) += D H^T over columns
-// [0, m) of D and H; D's rows must be whole batches there.
-template <class B, int NB, int NC>
+// [0, m) of D and H; D's rows must be whole batches there. Sums: the same rows
+// of s += D 1 as well (the first column group's call; D's rows are loaded anyway).
+template <class B, int NB, int NC, bool Sums>
 inline void dense_outer_block(typename B::value_type* g, Eigen::Index ldg, Eigen::Index row0, Eigen::Index k0,
                               const typename B::value_type* d, Eigen::Index ldd, const typename B::value_type* h,
-                              Eigen::Index ldh, Eigen::Index m) {
+                              Eigen::Index ldh, Eigen::Index m, typename B::value_type* sums) {
   using S = typename B::value_type;
   constexpr Eigen::Index L = Eigen::Index(B::size);
-  B acc[NB][NC];
-  for (int b = 0; b < NB; ++b)
+  B acc[NB][NC], sum[NB];
+  for (int b = 0; b < NB; ++b) {
+    sum[b] = B(S(0));
     for (int c = 0; c < NC; ++c) acc[b][c] = B(S(0));
+  }
   for (Eigen::Index j = 0; j < m; ++j) {
     const S* dj = d + j * ldd + row0;
     const S* hj = h + j * ldh + k0;
     B dv[NB];
     for (int b = 0; b < NB; ++b) dv[b] = B::load_unaligned(dj + b * L);
+    if constexpr (Sums)
+      for (int b = 0; b < NB; ++b) sum[b] = sum[b] + dv[b];
     for (int c = 0; c < NC; ++c) {
       const B s(hj[c]);
       for (int b = 0; b < NB; ++b) acc[b][c] = simd::fma(dv[b], s, acc[b][c]);
@@ -176,23 +199,35 @@ inline void dense_outer_block(typename B::value_type* g, Eigen::Index ldg, Eigen
       S* dst = g + (k0 + c) * ldg + row0 + b * L;
       (B::load_unaligned(dst) + acc[b][c]).store_unaligned(dst);
     }
+  if constexpr (Sums)
+    for (int b = 0; b < NB; ++b) {
+      S* dst = sums + row0 + b * L;
+      (B::load_unaligned(dst) + sum[b]).store_unaligned(dst);
+    }
 }
 
 template <class B, int NB>
 inline void dense_outer_rows(typename B::value_type* g, Eigen::Index ldg, Eigen::Index row0, Eigen::Index cols,
                              const typename B::value_type* d, Eigen::Index ldd, const typename B::value_type* h,
-                             Eigen::Index ldh, Eigen::Index m) {
+                             Eigen::Index ldh, Eigen::Index m, typename B::value_type* sums) {
   constexpr int NC = dense_column_group<B>();
   Eigen::Index k = 0;
-  for (; k + NC <= cols; k += NC) dense_outer_block<B, NB, NC>(g, ldg, row0, k, d, ldd, h, ldh, m);
-  for (; k < cols; ++k) dense_outer_block<B, NB, 1>(g, ldg, row0, k, d, ldd, h, ldh, m);
+  if (sums && cols >= NC) {
+    dense_outer_block<B, NB, NC, true>(g, ldg, row0, 0, d, ldd, h, ldh, m, sums);
+    k = NC;
+  } else if (sums) {
+    dense_outer_block<B, NB, 1, true>(g, ldg, row0, 0, d, ldd, h, ldh, m, sums);
+    k = 1;
+  }
+  for (; k + NC <= cols; k += NC) dense_outer_block<B, NB, NC, false>(g, ldg, row0, k, d, ldd, h, ldh, m, nullptr);
+  for (; k < cols; ++k) dense_outer_block<B, NB, 1, false>(g, ldg, row0, k, d, ldd, h, ldh, m, nullptr);
 }
 
-// G += D H^T with rows a multiple of B::size.
+// G += D H^T (and sums += D 1 unless null) with rows a multiple of B::size; cols >= 1.
 template <class B>
 void dense_outer_whole_batches(typename B::value_type* g, Eigen::Index ldg, Eigen::Index rows, Eigen::Index cols,
                                const typename B::value_type* d, Eigen::Index ldd, const typename B::value_type* h,
-                               Eigen::Index ldh, Eigen::Index m) {
+                               Eigen::Index ldh, Eigen::Index m, typename B::value_type* sums) {
   constexpr Eigen::Index L = Eigen::Index(B::size);
   // Column tiles that keep D's and H's columns in L1 across the column groups.
   constexpr Eigen::Index tile = 128;
@@ -201,11 +236,11 @@ void dense_outer_whole_batches(typename B::value_type* g, Eigen::Index ldg, Eige
     const auto* dj = d + j0 * ldd;
     const auto* hj = h + j0 * ldh;
     Eigen::Index r = 0;
-    for (; r + 4 * L <= rows; r += 4 * L) dense_outer_rows<B, 4>(g, ldg, r, cols, dj, ldd, hj, ldh, mj);
+    for (; r + 4 * L <= rows; r += 4 * L) dense_outer_rows<B, 4>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums);
     switch ((rows - r) / L) {
-      case 3: dense_outer_rows<B, 3>(g, ldg, r, cols, dj, ldd, hj, ldh, mj); break;
-      case 2: dense_outer_rows<B, 2>(g, ldg, r, cols, dj, ldd, hj, ldh, mj); break;
-      case 1: dense_outer_rows<B, 1>(g, ldg, r, cols, dj, ldd, hj, ldh, mj); break;
+      case 3: dense_outer_rows<B, 3>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
+      case 2: dense_outer_rows<B, 2>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
+      case 1: dense_outer_rows<B, 1>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
       default: break;
     }
   }
@@ -215,11 +250,13 @@ void dense_outer_whole_batches(typename B::value_type* g, Eigen::Index ldg, Eige
 
 // z[:, j] = act(sum over terms of W_t x_t[:, j] + bias) for j < m, rows outputs
 // (leading dimension ldz). Every term's weights (and the bias, or nullptr) are
-// padded to whole batches of B as DenseWeights lays them out. act: ReLU or none.
+// padded to whole batches of B as DenseWeights lays them out. act: ReLU or
+// none; then, where gate is given (rows x m, leading dimension ldgate), z is 0
+// wherever gate <= 0.
 template <class B>
 void dense_forward(Eigen::Index rows, const DenseTerm<typename B::value_type>* terms, int n_terms,
                    const typename B::value_type* bias, Eigen::Index m, typename B::value_type* z, Eigen::Index ldz,
-                   bool relu) {
+                   bool relu, const typename B::value_type* gate = nullptr, Eigen::Index ldgate = 0) {
   using S = typename B::value_type;
   constexpr Eigen::Index L = Eigen::Index(B::size);
   // Column tiles whose inputs (about 32 KB) stay in L1 across the row blocks and panels.
@@ -235,37 +272,49 @@ void dense_forward(Eigen::Index rows, const DenseTerm<typename B::value_type>* t
       shifted[t].x += j0 * terms[t].ldx;
     }
     S* zj = z + j0 * ldz;
+    const S* gj = gate ? gate + j0 * ldgate : nullptr;
     Eigen::Index r = 0;
-    for (; r + 4 * L <= rows; r += 4 * L) detail::dense_forward_rows<B, 4>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu);
+    for (; r + 4 * L <= rows; r += 4 * L)
+      detail::dense_forward_rows<B, 4>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate);
     switch ((rows - r + L - 1) / L) {
-      case 3: detail::dense_forward_rows<B, 3>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu); break;
-      case 2: detail::dense_forward_rows<B, 2>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu); break;
-      case 1: detail::dense_forward_rows<B, 1>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu); break;
+      case 3: detail::dense_forward_rows<B, 3>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
+      case 2: detail::dense_forward_rows<B, 2>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
+      case 1: detail::dense_forward_rows<B, 1>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
       default: break;
     }
   }
 }
 
 // g (rows x cols, leading dimension ldg) += d h^T over m columns: d rows x m
-// (ldd), h cols x m (ldh). scratch: reused when neither rows nor cols is a whole
-// number of batches of B and the sum runs transposed.
+// (ldd), h cols x m (ldh); row_sums (rows values, or nullptr) += the sum of d's
+// columns. scratch: reused when neither rows nor cols is a whole number of
+// batches of B and the sum runs transposed.
 template <class B>
 void dense_accumulate_outer(typename B::value_type* g, Eigen::Index ldg, Eigen::Index rows, Eigen::Index cols,
                             const typename B::value_type* d, Eigen::Index ldd, const typename B::value_type* h,
-                            Eigen::Index ldh, Eigen::Index m, std::vector<typename B::value_type>& scratch) {
+                            Eigen::Index ldh, Eigen::Index m, std::vector<typename B::value_type>& scratch,
+                            typename B::value_type* row_sums = nullptr) {
   using S = typename B::value_type;
   constexpr Eigen::Index L = Eigen::Index(B::size);
+  if (rows % L == 0 && cols > 0) {
+    detail::dense_outer_whole_batches<B>(g, ldg, rows, cols, d, ldd, h, ldh, m, row_sums);
+    return;
+  }
   if (rows % L == 0) {
-    detail::dense_outer_whole_batches<B>(g, ldg, rows, cols, d, ldd, h, ldh, m);
+    // no columns: only the sums
   } else if (cols % L == 0) {
     // G^T += H D^T, then added back transposed (the output heads: a few rows).
     scratch.assign(std::size_t(cols * rows), S(0));
-    detail::dense_outer_whole_batches<B>(scratch.data(), cols, cols, rows, h, ldh, d, ldd, m);
+    detail::dense_outer_whole_batches<B>(scratch.data(), cols, cols, rows, h, ldh, d, ldd, m, nullptr);
     for (Eigen::Index c = 0; c < cols; ++c)
       for (Eigen::Index r = 0; r < rows; ++r) g[c * ldg + r] += scratch[std::size_t(r * cols + c)];
   } else {
-    detail::dense_outer_whole_batches<simd::scalar_batch<S>>(g, ldg, rows, cols, d, ldd, h, ldh, m);
+    detail::dense_outer_whole_batches<simd::scalar_batch<S>>(g, ldg, rows, cols, d, ldd, h, ldh, m, row_sums);
+    return;
   }
+  if (row_sums)
+    for (Eigen::Index j = 0; j < m; ++j)
+      for (Eigen::Index r = 0; r < rows; ++r) row_sums[r] += d[j * ldd + r];
 }
 
 }  // namespace orbitforge

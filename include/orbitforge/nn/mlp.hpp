@@ -15,6 +15,12 @@
 //   y   = W_o h_{depth-1} + b_o                   all linear heads stacked as one layer;
 //                                                 head k is rows [head_offset(k), +head_dims[k])
 //
+// Shared input: the last shared_input_dims rows of x may be the same for every
+// point (the deformation field's time code). They are then given once per call
+// instead of per column, and their product with the weights is added to the
+// bias of the layers that read x: W [x_v; s] + b = W_v x_v + (W_s s + b).
+// Their weights' gradient is the bias gradient times s^T.
+//
 // Parameters live in ONE flat buffer (tiny-cuda-nn style) so that Adam runs over a
 // single array; per layer: W (rows x cols, column-major) then b (rows). Gradients
 // use the same layout.
@@ -44,6 +50,7 @@ struct MlpParams {
   int width = 256;
   int skip_layer = -1;         // input concatenated to h_skip_layer (feeds layer skip_layer+1); -1: none
   std::vector<int> head_dims;  // linear output heads on h_{depth-1}; at least one
+  int shared_input_dims = 0;   // the last rows of the input, the same for every point (see above); < input_dims
 };
 
 template <class Scalar>
@@ -64,9 +71,11 @@ class Mlp {
   struct Workspace {
     std::vector<Matrix> hidden;  // depth x [width x N], post-ReLU
     Eigen::Index points = 0;
+    Vector shared;               // the shared input rows of the last forward
     std::vector<Matrix> scratch_a, scratch_b;              // per range: [width x chunk]
     std::vector<std::vector<Scalar>> range_grads;         // per range: [parameter_count]
     std::vector<std::vector<Scalar>> outer_scratch;       // per range: dense_accumulate_outer's
+    std::vector<Vector> chunk_bias_grad;                  // per range: a layer's bias gradient over one chunk
     // The layers' weights laid out for dense_forward, set at each call: W_i and b_i
     // for the forward; W_i^T (the skip layer: its h_{i-1} columns, transposed) and
     // the heads' W^T for the backward (index depth), layer 0's unused.
@@ -88,6 +97,8 @@ class Mlp {
     ensure(p.skip_layer == -1 || (p.skip_layer >= 0 && p.skip_layer < p.depth - 1), "Mlp: skip_layer ",
            p.skip_layer, " must be -1 or in [0, depth-1) = [0, ", p.depth - 1, ")");
     ensure(!p.head_dims.empty(), "Mlp: at least one output head is needed");
+    ensure(p.shared_input_dims >= 0 && p.shared_input_dims < p.input_dims, "Mlp: shared_input_dims ",
+           p.shared_input_dims, " must be in [0, input_dims) = [0, ", p.input_dims, ")");
     std::size_t off = 0;
     auto add = [&](int rows, int cols) {
       Layer l;
@@ -115,6 +126,8 @@ class Mlp {
 
   const MlpParams& params() const { return p_; }
   int input_dims() const { return p_.input_dims; }
+  // Rows of the input matrix forward() takes: the input less its shared rows.
+  int point_input_dims() const { return p_.input_dims - p_.shared_input_dims; }
   int output_dims() const { return layers_.back().rows; }
   int head_offset(int k) const { return head_offsets_.at(std::size_t(k)); }
   const std::vector<Layer>& layers() const { return layers_; }
@@ -151,11 +164,16 @@ class Mlp {
     return Eigen::Map<const Vector>(params_.data() + l.b, l.rows);
   }
 
-  // in:  input [input_dims x N]
-  // out: out   [output_dims x N] (resized), ws.hidden filled for backward()
-  void forward(const Matrix& input, Workspace& ws, Matrix& out, int threads = 0) const {
-    ensure(input.rows() == p_.input_dims, "Mlp::forward: input has ", input.rows(), " rows, expected ",
-           p_.input_dims);
+  // in:  input  [point_input_dims x N]
+  //      shared [shared_input_dims] the input's last rows, the same for every point (null when none)
+  // out: out    [output_dims x N] (resized), ws.hidden filled for backward()
+  void forward(const Matrix& input, Workspace& ws, Matrix& out, int threads = 0, const Scalar* shared = nullptr) const {
+    ensure(input.rows() == point_input_dims(), "Mlp::forward: input has ", input.rows(), " rows, expected ",
+           point_input_dims());
+    ensure((shared != nullptr) == (p_.shared_input_dims > 0), "Mlp::forward: the network has ",
+           p_.shared_input_dims, " shared input rows, and they were ", shared ? "" : "not ", "given");
+    ws.shared = Eigen::Map<const Vector>(shared, shared ? p_.shared_input_dims : 0);
+    ensure(ws.shared.allFinite(), "Mlp::forward: the shared input contains non-finite values");
     const Eigen::Index n = input.cols();
     ws.hidden.resize(std::size_t(p_.depth));
     for (auto& h : ws.hidden)
@@ -165,8 +183,8 @@ class Mlp {
     ws.forward_weights.resize(dense_kernels() ? layers_.size() : 0);
     for (std::size_t i = 0; i < ws.forward_weights.size(); ++i) {
       const Layer& l = layers_[i];
-      ws.forward_weights[i].template assign<Batch>(params_.data() + l.w, l.rows, l.rows, l.cols, false,
-                                                   params_.data() + l.b);
+      const Vector b = layer_bias(ws, int(i));
+      ws.forward_weights[i].template assign<Batch>(params_.data() + l.w, l.rows, l.rows, l.cols, false, b.data());
     }
     const int ranges = range_count(n, threads);
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
@@ -183,11 +201,11 @@ class Mlp {
     });
   }
 
-  // in:  input    [input_dims x N]   as given to forward()
-  //      ws                          from forward() on that input
-  //      v_out    [output_dims x N]  gradient of the loss w.r.t. the outputs
-  // out: v_params [parameter_count]  gradient w.r.t. the parameters, ACCUMULATED (+=)
-  //      v_input  [input_dims x N]   gradient w.r.t. the input, overwritten; nullptr: skip
+  // in:  input    [point_input_dims x N]  as given to forward()
+  //      ws                               from forward() on that input
+  //      v_out    [output_dims x N]       gradient of the loss w.r.t. the outputs
+  // out: v_params [parameter_count]       gradient w.r.t. the parameters, ACCUMULATED (+=)
+  //      v_input  [point_input_dims x N]  gradient w.r.t. the input, overwritten; nullptr: skip
   void backward(const Matrix& input, Workspace& ws, const Matrix& v_out, Scalar* v_params, Matrix* v_input,
                 int threads = 0) const {
     const Eigen::Index n = input.cols();
@@ -196,12 +214,14 @@ class Mlp {
     ensure(v_out.rows() == output_dims() && v_out.cols() == n, "Mlp::backward: v_out is ", v_out.rows(), "x",
            v_out.cols(), ", expected ", output_dims(), "x", n);
     ensure(v_params != nullptr, "Mlp::backward: v_params is null");
-    if (v_input && (v_input->rows() != p_.input_dims || v_input->cols() != n)) v_input->resize(p_.input_dims, n);
+    if (v_input && (v_input->rows() != point_input_dims() || v_input->cols() != n))
+      v_input->resize(point_input_dims(), n);
     const int ranges = range_count(n, threads);
     const Eigen::Index chunk = std::min<Eigen::Index>(chunk_columns, std::max<Eigen::Index>(n, 1));
     ws.scratch_a.resize(std::size_t(ranges));
     ws.scratch_b.resize(std::size_t(ranges));
     ws.outer_scratch.resize(std::size_t(ranges));
+    ws.chunk_bias_grad.resize(std::size_t(ranges));
     ws.backward_weights.resize(dense_kernels() ? layers_.size() : 0);
     for (std::size_t i = 1; i < ws.backward_weights.size(); ++i) {
       const Layer& l = layers_[i];
@@ -226,7 +246,7 @@ class Mlp {
       const auto [begin, end] = range(n, ranges, int(r));
       for (Eigen::Index c0 = begin; c0 < end; c0 += chunk_columns) {
         const Eigen::Index m = std::min(chunk_columns, end - c0);
-        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r]);
+        backward_chunk(input, ws, v_out, g, v_input, c0, m, a, b, ws.outer_scratch[r], ws.chunk_bias_grad[r]);
       }
     });
     if (ranges > 1) {
@@ -259,63 +279,84 @@ class Mlp {
   using StridedMap = Eigen::Map<Matrix, 0, Eigen::OuterStride<>>;
   using ConstStridedMap = Eigen::Map<const Matrix, 0, Eigen::OuterStride<>>;
 
-  // Layer i over m points: z = act(W_i [x; h] + b_i), x only in layer 0 and the
-  // skip layer, h (the previous layer's output) in every other; act is ReLU
-  // except for the heads (i == depth).
+  bool reads_input(int i) const { return i == 0 || is_skip_input(i); }
+
+  // b_i, plus W_i's shared-input columns times the shared input for the layers
+  // that read the input.
+  Vector layer_bias(const Workspace& ws, int i) const {
+    const Layer& l = layers_[std::size_t(i)];
+    Vector b = Eigen::Map<const Vector>(params_.data() + l.b, l.rows);
+    if (reads_input(i) && p_.shared_input_dims > 0)
+      b.noalias() += ConstMatrixMap(params_.data() + l.w, l.rows, l.cols).middleCols(point_input_dims(), p_.shared_input_dims) * ws.shared;
+    return b;
+  }
+
+  // Layer i over m points: z = act(W_i [x; h] + b_i), x (its point rows) only in
+  // layer 0 and the skip layer, h (the previous layer's output) in every other;
+  // act is ReLU except for the heads (i == depth).
   void layer_forward(const Workspace& ws, int i, const Scalar* x, Eigen::Index ldx, const Scalar* h, Eigen::Index m,
                      Scalar* z, Eigen::Index ldz) const {
     const Layer& l = layers_[std::size_t(i)];
     const bool relu = i < p_.depth;
-    const Eigen::Index in_cols = i == 0 || is_skip_input(i) ? p_.input_dims : 0;
+    const Eigen::Index x_cols = reads_input(i) ? point_input_dims() : 0;
+    const Eigen::Index h_col = reads_input(i) ? p_.input_dims : 0;  // W_i's first column on h
     if (dense_kernels()) {
       const DenseWeights<Scalar>& w = ws.forward_weights[std::size_t(i)];
       DenseTerm<Scalar> terms[2];
       int n_terms = 0;
-      if (in_cols > 0) terms[n_terms++] = {w.column(0), w.ld, in_cols, x, ldx};
-      if (i > 0) terms[n_terms++] = {w.column(in_cols), w.ld, p_.width, h, p_.width};
+      if (x_cols > 0) terms[n_terms++] = {w.column(0), w.ld, x_cols, x, ldx};
+      if (i > 0) terms[n_terms++] = {w.column(h_col), w.ld, p_.width, h, p_.width};
       dense_forward<Batch>(w.rows, terms, n_terms, w.b.data(), m, z, ldz, relu);
       return;
     }
     ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
     StridedMap zm(z, l.rows, m, Eigen::OuterStride<>(ldz));
-    if (in_cols > 0) zm.noalias() = w.leftCols(in_cols) * ConstStridedMap(x, in_cols, m, Eigen::OuterStride<>(ldx));
+    if (x_cols > 0) zm.noalias() = w.leftCols(x_cols) * ConstStridedMap(x, x_cols, m, Eigen::OuterStride<>(ldx));
     if (i > 0) {
       const ConstMatrixMap hm(h, p_.width, m);
-      if (in_cols > 0) zm.noalias() += w.rightCols(p_.width) * hm;
+      if (x_cols > 0) zm.noalias() += w.middleCols(h_col, p_.width) * hm;
       else zm.noalias() = w * hm;
     }
-    Eigen::Map<const Vector> b(params_.data() + l.b, l.rows);
+    const Vector b = layer_bias(ws, i);
     if (relu) zm = (zm.colwise() + b).cwiseMax(Scalar(0));  // one pass over z
     else zm.colwise() += b;
   }
 
-  // g (rows x cols, leading dimension ldg) += d h^T over m points.
+  // g (rows x cols, leading dimension ldg) += d h^T over m points; bias_grad
+  // (rows values, or nullptr) += the sum of d's columns.
   void weight_gradient(Scalar* g, Eigen::Index ldg, Eigen::Index rows, Eigen::Index cols, const Scalar* d,
                        Eigen::Index ldd, const Scalar* h, Eigen::Index ldh, Eigen::Index m,
-                       std::vector<Scalar>& outer) const {
+                       std::vector<Scalar>& outer, Scalar* bias_grad) const {
     if (dense_kernels()) {
-      dense_accumulate_outer<Batch>(g, ldg, rows, cols, d, ldd, h, ldh, m, outer);
+      dense_accumulate_outer<Batch>(g, ldg, rows, cols, d, ldd, h, ldh, m, outer, bias_grad);
       return;
     }
     StridedMap(g, rows, cols, Eigen::OuterStride<>(ldg)).noalias() +=
         ConstStridedMap(d, rows, m, Eigen::OuterStride<>(ldd)) *
         ConstStridedMap(h, cols, m, Eigen::OuterStride<>(ldh)).transpose();
+    if (bias_grad) {
+      Eigen::Map<Vector> gb(bias_grad, rows);
+      add_column_sum(ConstStridedMap(d, rows, m, Eigen::OuterStride<>(ldd)), gb);
+    }
   }
 
   // v_h (width x m) = W_i^T v_z over the columns of W_i that multiply h_{i-1}
-  // (i == depth: the heads').
+  // (i == depth: the heads'), then zero where h_{i-1} (the saved ReLU output,
+  // width x m) is not positive: the gradient w.r.t. layer i-1's pre-activation.
   void back_through(const Workspace& ws, int i, const Scalar* v_z, Eigen::Index ld_v_z, Eigen::Index m,
-                    Matrix& v_h) const {
+                    const Scalar* h, Matrix& v_h) const {
     if (dense_kernels()) {
       const DenseWeights<Scalar>& wt = ws.backward_weights[std::size_t(i)];
       const DenseTerm<Scalar> term{wt.column(0), wt.ld, wt.cols, v_z, ld_v_z};
-      dense_forward<Batch>(p_.width, &term, 1, nullptr, m, v_h.data(), v_h.rows(), false);
+      dense_forward<Batch>(p_.width, &term, 1, nullptr, m, v_h.data(), v_h.rows(), false, h, p_.width);
       return;
     }
     const Layer& l = layers_[std::size_t(i)];
     ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-    v_h.topLeftCorner(p_.width, m).noalias() =
-        w.rightCols(p_.width).transpose() * ConstStridedMap(v_z, l.rows, m, Eigen::OuterStride<>(ld_v_z));
+    auto dz = v_h.topLeftCorner(p_.width, m);
+    dz.noalias() = w.rightCols(p_.width).transpose() * ConstStridedMap(v_z, l.rows, m, Eigen::OuterStride<>(ld_v_z));
+    // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
+    dz.array() = (ConstMatrixMap(h, p_.width, m).array() > Scalar(0)).select(dz.array(), Scalar(0));
   }
 
   void forward_chunk(const Matrix& input, Workspace& ws, Matrix& out, Eigen::Index c0, Eigen::Index m) const {
@@ -328,7 +369,8 @@ class Mlp {
   }
 
   void backward_chunk(const Matrix& input, const Workspace& ws, const Matrix& v_out, Scalar* g, Matrix* v_input,
-                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb, std::vector<Scalar>& outer) const {
+                      Eigen::Index c0, Eigen::Index m, Matrix& sa, Matrix& sb, std::vector<Scalar>& outer,
+                      Vector& chunk_bias_grad) const {
     const Eigen::Index in_rows = input.rows(), width = p_.width;
     const Scalar* x = input.data() + c0 * in_rows;
     auto hidden = [&](int i) { return ws.hidden[std::size_t(i)].data() + c0 * width; };
@@ -337,36 +379,43 @@ class Mlp {
       const Layer& l = layers_.back();
       Eigen::Map<Vector> gb(g + l.b, l.rows);
       const Scalar* vy = v_out.data() + c0 * v_out.rows();
-      weight_gradient(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m, outer);
+      weight_gradient(g + l.w, l.rows, l.rows, l.cols, vy, v_out.rows(), hidden(p_.depth - 1), width, m, outer, nullptr);
       add_column_sum(v_out.middleCols(c0, m), gb);
-      back_through(ws, p_.depth, vy, v_out.rows(), m, sa);  // v_h_{depth-1}
+      back_through(ws, p_.depth, vy, v_out.rows(), m, hidden(p_.depth - 1), sa);  // v_z of layer depth-1
     }
     if (v_input) v_input->middleCols(c0, m).setZero();
     Matrix* cur = &sa;
     Matrix* nxt = &sb;
     for (int i = p_.depth - 1; i >= 0; --i) {
       const Layer& l = layers_[std::size_t(i)];
-      Eigen::Map<Vector> gb(g + l.b, l.rows);
-      auto dz = cur->topLeftCorner(width, m);
-      const auto h = ws.hidden[std::size_t(i)].middleCols(c0, m);
-      // ReLU: relu(z) > 0 exactly where z > 0, so the saved output is the mask.
-      dz.array() = (h.array() > Scalar(0)).select(dz.array(), Scalar(0));
-      add_column_sum(dz, gb);
+      Scalar* gb = g + l.b;
       const Scalar* v_z = cur->data();
       const Eigen::Index ld_v_z = cur->rows();
-      // The input's columns of W_i: all of layer 0, the first input_dims of the skip layer.
-      if (i == 0 || is_skip_input(i)) {
-        weight_gradient(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer);
+      if (reads_input(i)) {
+        // The input's columns of W_i: its point rows' from the products, its
+        // shared rows' as the chunk's bias gradient times the shared values.
+        Scalar* sums = gb;
+        if (p_.shared_input_dims > 0) {
+          chunk_bias_grad.setZero(width);
+          sums = chunk_bias_grad.data();
+        }
+        weight_gradient(g + l.w, l.rows, l.rows, in_rows, v_z, ld_v_z, x, in_rows, m, outer, sums);
+        if (p_.shared_input_dims > 0) {
+          Eigen::Map<Vector>(gb, l.rows) += chunk_bias_grad;
+          MatrixMap(g + l.w, l.rows, l.cols).middleCols(in_rows, p_.shared_input_dims).noalias() +=
+              chunk_bias_grad * ws.shared.transpose();
+        }
         if (v_input) {
           ConstMatrixMap w(params_.data() + l.w, l.rows, l.cols);
-          v_input->middleCols(c0, m).noalias() += w.leftCols(p_.input_dims).transpose() * dz;
+          v_input->middleCols(c0, m).noalias() += w.leftCols(in_rows).transpose() * cur->topLeftCorner(width, m);
         }
         if (i == 0) break;
+        gb = nullptr;  // summed above
       }
-      const Eigen::Index h_col = is_skip_input(i) ? in_rows : 0;
+      const Eigen::Index h_col = reads_input(i) ? p_.input_dims : 0;
       weight_gradient(g + l.w + std::size_t(h_col * l.rows), l.rows, l.rows, width, v_z, ld_v_z, hidden(i - 1),
-                      width, m, outer);
-      back_through(ws, i, v_z, ld_v_z, m, *nxt);
+                      width, m, outer, gb);
+      back_through(ws, i, v_z, ld_v_z, m, hidden(i - 1), *nxt);
       std::swap(cur, nxt);
     }
   }
