@@ -5,7 +5,7 @@
 // mlp.hpp gives those to Eigen's GEMM):
 //
 //   dense_forward           Z = act(W1 X1 + W2 X2 + b)   W R x K, X K x m, Z R x m
-//                           (act: none, ReLU, or a gate: Z zero where a mask <= 0)
+//                           (act: none or ReLU; optionally Z zero where a gate <= 0)
 //   dense_accumulate_outer  G += D H^T, s += D 1          G R x K, D R x m, H K x m
 //
 // All column-major. A block of W's rows stays in registers while the columns of
