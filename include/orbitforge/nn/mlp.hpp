@@ -72,6 +72,7 @@ class Mlp {
     std::vector<Matrix> hidden;  // depth x [width x N], post-ReLU
     Eigen::Index points = 0;
     Vector shared;               // the shared input rows of the last forward
+    std::vector<Vector> biases;  // per layer: b_i with W_i's shared columns times `shared` added (forward)
     std::vector<Matrix> scratch_a, scratch_b;              // per range: [width x chunk]
     std::vector<std::vector<Scalar>> range_grads;         // per range: [parameter_count]
     std::vector<std::vector<Scalar>> outer_scratch;       // per range: dense_accumulate_outer's
@@ -180,11 +181,19 @@ class Mlp {
       if (h.rows() != p_.width || h.cols() != n) h.resize(p_.width, n);
     ws.points = n;
     if (out.rows() != output_dims() || out.cols() != n) out.resize(output_dims(), n);
+    ws.biases.resize(layers_.size());
+    for (std::size_t i = 0; i < layers_.size(); ++i) {
+      const Layer& l = layers_[i];
+      ws.biases[i] = Eigen::Map<const Vector>(params_.data() + l.b, l.rows);
+      if (reads_input(int(i)) && p_.shared_input_dims > 0)
+        ws.biases[i].noalias() +=
+            weight(int(i)).middleCols(point_input_dims(), p_.shared_input_dims) * ws.shared;
+    }
     ws.forward_weights.resize(dense_kernels() ? layers_.size() : 0);
     for (std::size_t i = 0; i < ws.forward_weights.size(); ++i) {
       const Layer& l = layers_[i];
-      const Vector b = layer_bias(ws, int(i));
-      ws.forward_weights[i].template assign<Batch>(params_.data() + l.w, l.rows, l.rows, l.cols, false, b.data());
+      ws.forward_weights[i].template assign<Batch>(params_.data() + l.w, l.rows, l.rows, l.cols, false,
+                                                   ws.biases[i].data());
     }
     const int ranges = range_count(n, threads);
     parallel_for(std::size_t(ranges), ranges, [&](std::size_t r, int) {
@@ -281,16 +290,6 @@ class Mlp {
 
   bool reads_input(int i) const { return i == 0 || is_skip_input(i); }
 
-  // b_i, plus W_i's shared-input columns times the shared input for the layers
-  // that read the input.
-  Vector layer_bias(const Workspace& ws, int i) const {
-    const Layer& l = layers_[std::size_t(i)];
-    Vector b = Eigen::Map<const Vector>(params_.data() + l.b, l.rows);
-    if (reads_input(i) && p_.shared_input_dims > 0)
-      b.noalias() += ConstMatrixMap(params_.data() + l.w, l.rows, l.cols).middleCols(point_input_dims(), p_.shared_input_dims) * ws.shared;
-    return b;
-  }
-
   // Layer i over m points: z = act(W_i [x; h] + b_i), x (its point rows) only in
   // layer 0 and the skip layer, h (the previous layer's output) in every other;
   // act is ReLU except for the heads (i == depth).
@@ -317,7 +316,7 @@ class Mlp {
       if (x_cols > 0) zm.noalias() += w.middleCols(h_col, p_.width) * hm;
       else zm.noalias() = w * hm;
     }
-    const Vector b = layer_bias(ws, i);
+    const Vector& b = ws.biases[std::size_t(i)];
     if (relu) zm = (zm.colwise() + b).cwiseMax(Scalar(0));  // one pass over z
     else zm.colwise() += b;
   }
