@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "orbitforge/splat/bin.hpp"
@@ -565,6 +566,11 @@ TEMPLATE_TEST_CASE("alpha_power_floor is a tight lower bound of log2(1 / (255 op
   }
   CHECK(checked > 20000);
   CHECK(std::isinf(detail::alpha_power_floor(TestType(0))));
+  // Subnormal 255 opacity (frexp's path): still a lower bound.
+  for (const TestType op : {std::numeric_limits<TestType>::denorm_min(), std::numeric_limits<TestType>::min() / 1024}) {
+    INFO("opacity " << op);
+    CHECK(double(detail::alpha_power_floor(op)) < -std::log2(255.0 * double(op)));
+  }
 }
 
 TEMPLATE_TEST_CASE("tiles without Gaussians: the background, and their share of its gradient", "[render]", float,

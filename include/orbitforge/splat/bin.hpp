@@ -87,30 +87,37 @@ struct BinWorkspace {
     const auto& b = rank_boxes[r];
     return rank_offsets[r] + std::uint32_t((ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0]));
   }
+  // Calls f(ty, tx0, tx1, row_slot) for each row of tiles of rank r's box that
+  // lists it in tiles tx0 .. tx1 (inclusive, tx0 <= tx1); row_slot is the slot
+  // of the row's first box tile (tile tx's slot: row_slot + tx - box x0).
+  template <class F>
+  void for_each_listed_row(std::size_t r, F&& f) const {
+    const auto& b = rank_boxes[r];
+    const std::uint64_t trims = rank_trims[r];
+    const std::uint32_t box_w = std::uint32_t(b[2] - b[0] + 1);
+    std::uint32_t row_slot = rank_offsets[r];
+    if (trims == 0) {
+      for (int ty = b[1]; ty <= b[3]; ++ty, row_slot += box_w) f(ty, b[0], b[2], row_slot);
+    } else if (trims == detail::kTrimsRecompute) {
+      const detail::TileRowSpans spans(records[r], grid.tile_size);
+      for (int ty = b[1]; ty <= b[3]; ++ty, row_slot += box_w) {
+        const auto [tx0, tx1] = spans.row(ty, b[0], b[2]);
+        if (tx0 <= tx1) f(ty, tx0, tx1, row_slot);
+      }
+    } else {
+      for (int ty = b[1], i = 0; ty <= b[3]; ++ty, ++i, row_slot += box_w) {
+        const int tx0 = b[0] + int((trims >> (8 * i)) & 15u), tx1 = b[2] - int((trims >> (8 * i + 4)) & 15u);
+        if (tx0 <= tx1) f(ty, tx0, tx1, row_slot);
+      }
+    }
+  }
   // Calls f(tx, ty, slot) for each tile that lists rank r, row by row.
   template <class F>
   void for_each_listed_tile(std::size_t r, F&& f) const {
-    const auto& b = rank_boxes[r];
-    const std::uint64_t trims = rank_trims[r];
-    const int box_w = b[2] - b[0] + 1;
-    std::uint32_t row_slot = rank_offsets[r];
-    if (trims == 0) {
-      for (int ty = b[1]; ty <= b[3]; ++ty)
-        for (int tx = b[0]; tx <= b[2]; ++tx) f(tx, ty, row_slot++);
-      return;
-    }
-    if (trims == detail::kTrimsRecompute) {
-      const detail::TileRowSpans spans(records[r], grid.tile_size);
-      for (int ty = b[1]; ty <= b[3]; ++ty, row_slot += std::uint32_t(box_w)) {
-        const auto [tx0, tx1] = spans.row(ty, b[0], b[2]);
-        for (int tx = tx0; tx <= tx1; ++tx) f(tx, ty, row_slot + std::uint32_t(tx - b[0]));
-      }
-      return;
-    }
-    for (int ty = b[1], i = 0; ty <= b[3]; ++ty, ++i, row_slot += std::uint32_t(box_w)) {
-      const int tx0 = b[0] + int((trims >> (8 * i)) & 15u), tx1 = b[2] - int((trims >> (8 * i + 4)) & 15u);
-      for (int tx = tx0; tx <= tx1; ++tx) f(tx, ty, row_slot + std::uint32_t(tx - b[0]));
-    }
+    const int x0 = rank_boxes[r][0];
+    for_each_listed_row(r, [&](int ty, int tx0, int tx1, std::uint32_t row_slot) {
+      for (int tx = tx0; tx <= tx1; ++tx) f(tx, ty, row_slot + std::uint32_t(tx - x0));
+    });
   }
 
   // Sort scratch (kept so that frames after the first do not allocate).
@@ -120,6 +127,7 @@ struct BinWorkspace {
   std::vector<SplatRecord<Scalar>> packed_;
   std::vector<std::uint64_t> packed_trims_;
   std::vector<std::uint32_t> chunk_counts_;  // [chunks][tiles] counts, then cursors
+  std::vector<std::int32_t> chunk_diffs_;    // [chunks][tiles_y][tiles_x + 1] row differences of the counts
   std::vector<std::uint64_t> chunk_entries_; // [chunks + 1] rank-major entry offsets
 };
 
@@ -359,12 +367,17 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   const int tiles_x = g.tiles_x;
   const int ts_shift = detail::tile_size_shift(ts);
   const std::size_t chunks = std::max<std::size_t>(1, std::min<std::size_t>(std::size_t(std::max(1, threads)), v / 4096));
-  ws.chunk_counts_.assign(chunks * tiles, 0u);
+  // Per chunk, a row's entries are counted as +1 at its first tile and -1 past
+  // its last (a row of tiles_x + 1 cells), then summed along the row: two
+  // increments per listed row instead of one per listed tile.
+  const std::size_t diff_row = std::size_t(tiles_x) + 1, diff_cells = diff_row * std::size_t(g.tiles_y);
+  ws.chunk_counts_.resize(chunks * tiles);
+  ws.chunk_diffs_.assign(chunks * diff_cells, 0);
   ws.chunk_entries_.assign(chunks + 1, 0u);
   auto chunk_range = [&](std::size_t c) { return std::pair<std::size_t, std::size_t>(v * c / chunks, v * (c + 1) / chunks); };
   parallel_for(chunks, threads, [&](std::size_t c, int) {
     const auto [r0, r1] = chunk_range(c);
-    std::uint32_t* counts = ws.chunk_counts_.data() + c * tiles;
+    std::int32_t* diffs = ws.chunk_diffs_.data() + c * diff_cells;
     std::uint64_t entries = 0;
     for (std::size_t r = r0; r < r1; ++r) {
       const std::size_t p = std::size_t(ws.perm_[r]);
@@ -382,10 +395,20 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       ws.rank_boxes[r] = box;
       ws.order[r] = box[4];
       ws.rank_trims[r] = ws.packed_trims_[p];
-      ws.for_each_listed_tile(r, [&](int tx, int ty, std::uint32_t) { ++counts[ty * tiles_x + tx]; });
+      ws.for_each_listed_row(r, [&](int ty, int tx0, int tx1, std::uint32_t) {
+        std::int32_t* row = diffs + std::size_t(ty) * diff_row;
+        ++row[tx0];
+        --row[tx1 + 1];
+      });
       entries += std::uint64_t(box[3] - box[1] + 1) * std::uint64_t(box[2] - box[0] + 1);
     }
     ws.chunk_entries_[c + 1] = entries;
+    std::uint32_t* counts = ws.chunk_counts_.data() + c * tiles;
+    for (int ty = 0; ty < g.tiles_y; ++ty) {
+      const std::int32_t* row = diffs + std::size_t(ty) * diff_row;
+      std::int32_t run = 0;
+      for (int tx = 0; tx < tiles_x; ++tx) counts[ty * tiles_x + tx] = std::uint32_t(run += row[tx]);
+    }
   });
   // Prefix sums: tile offsets over all chunks, then each chunk's start within a tile.
   ws.tile_offsets.assign(tiles + 1, 0u);

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 
 namespace orbitforge {
 
@@ -80,12 +81,31 @@ inline std::array<int, 4> record_tile_box(const SplatRecord<Scalar>& rec, int ti
 // opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
 // x = 255 opacity = m 2^e, m in [1, 2), log2 x <= e + (m - 1) + 0.0861 (the
 // largest gap between log2 m and its chord); 1e-4 more covers rounding.
+// For a normal x, e and m come from its bits (the exponent field and the
+// significand with the exponent of 1); frexp, a library call, handles the rest.
 template <class Scalar>
 inline Scalar alpha_power_floor(Scalar opacity) {
+  static_assert(std::numeric_limits<Scalar>::is_iec559, "alpha_power_floor: IEEE float or double");
   if (!(opacity > Scalar(0))) return std::numeric_limits<Scalar>::infinity();
-  int e = 0;
-  const Scalar m = Scalar(2) * std::frexp(Scalar(255) * opacity, &e);  // in [1, 2)
-  const Scalar log2_upper = Scalar(e - 1) + (m - Scalar(1)) + Scalar(0.0861);
+  using Bits = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
+  constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
+  constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
+  constexpr int bias = int(exp_mask >> 1);
+  const Scalar x = Scalar(255) * opacity;
+  Scalar m;
+  int e_minus_1;  // x = m 2^(e_minus_1), m in [1, 2)
+  if (x >= std::numeric_limits<Scalar>::min() && x <= std::numeric_limits<Scalar>::max()) {
+    Bits bits;
+    std::memcpy(&bits, &x, sizeof(Bits));
+    e_minus_1 = int((bits >> mant) & exp_mask) - bias;
+    bits = (bits & ((Bits(1) << mant) - 1)) | (Bits(bias) << mant);
+    std::memcpy(&m, &bits, sizeof(Bits));
+  } else {
+    int e = 0;
+    m = Scalar(2) * std::frexp(x, &e);
+    e_minus_1 = e - 1;
+  }
+  const Scalar log2_upper = Scalar(e_minus_1) + (m - Scalar(1)) + Scalar(0.0861);
   return -log2_upper - Scalar(1e-4);
 }
 
