@@ -350,8 +350,12 @@ inline CullReason project_gaussian(const ProjectionCamera<Scalar>& cam, const Ga
 
   const Scalar iz = Scalar(1) / t[2];
   const Scalar u = cam.fx * t[0] * iz + cam.cx, v = cam.fy * t[1] * iz + cam.cy;
-  const Scalar mid = Scalar(0.5) * (cov[0] + cov[2]);
-  const Scalar lambda = mid + std::sqrt(std::max(Scalar(0), mid * mid - det));
+  // The larger eigenvalue, its square root's argument mid^2 - det written as a
+  // sum of squares: never negative, and its rounding stays relative to itself
+  // (mid^2 - det cancels for a round splat, whose radius then moved with the
+  // last bits of the covariance).
+  const Scalar mid = Scalar(0.5) * (cov[0] + cov[2]), half_diff = Scalar(0.5) * (cov[0] - cov[2]);
+  const Scalar lambda = mid + std::sqrt(half_diff * half_diff + cov[1] * cov[1]);
   // Rectangle arithmetic in double: exact integer bounds for any precision.
   const double r = std::min(std::ceil(3.0 * std::sqrt(double(lambda))), double(1 << 30));
   const double W1 = cam.width - 1, H1 = cam.height - 1;

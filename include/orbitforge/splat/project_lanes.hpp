@@ -280,12 +280,12 @@ inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B:
   const B lim_int(Scalar(1 << 22));  // beyond: rectangle arithmetic left to the reference
   defer(~((simd::abs(u) < lim_int) & (simd::abs(v) < lim_int)));
 
-  const B mid = half * (cov0 + cov2);
-  const B disc = mid * mid - det;
-  const B lambda = mid + simd::sqrt(simd::max(zero, disc));
-  const B edisc = ecov * (cov0 + cov2) + edet + tol * (mid * mid + simd::abs(det));
-  // |sqrt(a) - sqrt(b)| <= min(sqrt(|a - b|), |a - b| / sqrt(a)).
-  const B elam = ecov + simd::min(simd::sqrt(edisc), edisc / simd::sqrt(simd::max(disc, zero))) + tol * lambda;
+  const B mid = half * (cov0 + cov2), half_diff = half * (cov0 - cov2);
+  const B lambda = mid + simd::sqrt(half_diff * half_diff + cov1 * cov1);
+  // The root is the norm of (half_diff, cov1): it moves by at most the norm of
+  // their differences (<= sqrt(2) ecov), mid by ecov; the rest is rounding of
+  // terms no larger than lambda.
+  const B elam = B(Scalar(3)) * ecov + two * tol * lambda;
   const B sr = B(Scalar(3)) * simd::sqrt(lambda);
   const B esr = B(Scalar(3)) * elam / simd::sqrt(lambda) + tol * sr;
   defer(~(sr < lim_int) | (dist_to_int(sr) <= esr));
