@@ -277,3 +277,60 @@ TEST_CASE("batch projection: a large random scene decides every Gaussian as the 
   const ProjectionStats st = check_project_scene(view, cam, params, reference(view, pc), 2);
   CHECK(st.visible > n / 2);
 }
+
+TEMPLATE_TEST_CASE("batch projection: round splats at a step of the radius decide as the reference does",
+                   "[splat][project][batch]", float, double) {
+  // A round splat's 3-sigma radius is ceil(3 sqrt(lambda)), lambda the larger
+  // eigenvalue of its 2D covariance. Each splat here gets the log-scale, to the
+  // last bit, where the reference's radius steps up (found by bisection), or a
+  // few units in the last place either side: where the two paths' rounding
+  // could part, the batch path must hand the lane to the reference.
+  using S = TestType;
+  const auto cam = camera<S>();
+  ProjectionParams params;
+  params.tight_extents = false;  // the radius alone bounds the rectangle
+  const auto pc = ProjectionCamera<S>::make(cam, params);
+  std::mt19937 rng(14);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const std::size_t n = 3000;
+  GaussianScene<S> scene;
+  scene.resize(n, 0);
+  auto radius_of = [&](std::size_t i, S log_scale) {
+    GaussianParams<S> g{};
+    for (int a = 0; a < 3; ++a) g.mean[a] = scene.means[3 * i + std::size_t(a)];
+    for (int a = 0; a < 4; ++a) g.quat[a] = scene.rotations[4 * i + std::size_t(a)];
+    for (int a = 0; a < 3; ++a) g.scale[a] = std::exp(log_scale);
+    g.opacity_logit = scene.opacity_logits[i];
+    g.sh_degree = 0;
+    g.sh = &scene.sh[3 * i];
+    Splat<S> sp;
+    return project_gaussian(pc, g, sp) == CullReason::none ? sp.radius : -1;
+  };
+  std::size_t stepped = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) scene.means[3 * i + std::size_t(a)] = S(0.6 * u(rng));
+    for (int a = 0; a < 4; ++a) scene.rotations[4 * i + std::size_t(a)] = S(u(rng) + (a == 0 ? 2 : 0));
+    scene.opacity_logits[i] = S(2);
+    for (int c = 0; c < 3; ++c) scene.sh[3 * i + std::size_t(c)] = S(0.3);
+    // Bisect on the log-scale between a radius of a few pixels and one 4-8
+    // pixels larger, down to adjacent values of S.
+    S lo = S(-4.5 + 0.3 * u(rng)), hi = lo + S(0.5);
+    const int r_lo = radius_of(i, lo), r_hi = radius_of(i, hi);
+    REQUIRE(r_lo > 0);
+    REQUIRE(r_hi > r_lo);
+    for (int it = 0; it < 200; ++it) {
+      const S mid = lo + (hi - lo) / 2;
+      if (!(mid > lo && mid < hi)) break;
+      (radius_of(i, mid) == r_lo ? lo : hi) = mid;
+    }
+    stepped += radius_of(i, hi) > radius_of(i, lo) ? 1 : 0;
+    S l = (i % 3 == 0) ? lo : hi;
+    for (int k = int(i % 7) - 3; k != 0; k += k > 0 ? -1 : 1)
+      l = std::nextafter(l, k > 0 ? std::numeric_limits<S>::infinity() : -std::numeric_limits<S>::infinity());
+    for (int a = 0; a < 3; ++a) scene.log_scales[3 * i + std::size_t(a)] = l;
+  }
+  CHECK(stepped == n);
+  const SceneView<S> view(scene);
+  const ProjectionStats st = check_project_scene(view, cam, params, reference(view, pc), 1);
+  CHECK(st.visible == n);
+}

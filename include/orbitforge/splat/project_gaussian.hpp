@@ -352,8 +352,8 @@ inline CullReason project_gaussian(const ProjectionCamera<Scalar>& cam, const Ga
   const Scalar u = cam.fx * t[0] * iz + cam.cx, v = cam.fy * t[1] * iz + cam.cy;
   // The larger eigenvalue, its square root's argument mid^2 - det written as a
   // sum of squares: never negative, and its rounding stays relative to itself
-  // (mid^2 - det cancels for a round splat, whose radius then moved with the
-  // last bits of the covariance).
+  // (mid^2 - det cancels for a round splat, and its rounding, magnified by the
+  // root, would decide the radius).
   const Scalar mid = Scalar(0.5) * (cov[0] + cov[2]), half_diff = Scalar(0.5) * (cov[0] - cov[2]);
   const Scalar lambda = mid + std::sqrt(half_diff * half_diff + cov[1] * cov[1]);
   // Rectangle arithmetic in double: exact integer bounds for any precision.
