@@ -121,7 +121,7 @@ struct BinWorkspace {
   }
 
   // Sort scratch (kept so that frames after the first do not allocate).
-  using Key = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
+  using Key = detail::scalar_bits_t<Scalar>;
   std::vector<Key> keys_, keys_tmp_;
   std::vector<std::int32_t> perm_, idx_tmp_;
   std::vector<SplatRecord<Scalar>> packed_;

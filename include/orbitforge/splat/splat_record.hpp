@@ -77,6 +77,11 @@ inline std::array<int, 4> record_tile_box(const SplatRecord<Scalar>& rec, int ti
            (int(rec.y_hi) - 1) >> shift}};
 }
 
+// The unsigned integer as wide as Scalar (float: 32 bits, double: 64), for
+// reading a value's bits.
+template <class Scalar>
+using scalar_bits_t = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
+
 // A lower bound of log2(1 / (255 opacity)): base-2 powers below it give
 // opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
 // x = 255 opacity = m 2^e, m in [1, 2), log2 x <= e + (m - 1) + 0.0861 (the
@@ -87,7 +92,7 @@ template <class Scalar>
 inline Scalar alpha_power_floor(Scalar opacity) {
   static_assert(std::numeric_limits<Scalar>::is_iec559, "alpha_power_floor: IEEE float or double");
   if (!(opacity > Scalar(0))) return std::numeric_limits<Scalar>::infinity();
-  using Bits = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
+  using Bits = scalar_bits_t<Scalar>;
   constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
   constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
   constexpr int bias = int(exp_mask >> 1);
