@@ -112,14 +112,20 @@ inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
       ->group(kTrainingGroup);
   app.add_option("--exposure-lr", p.train.exposure_lr, "see --exposure")->check(positive())->group(kTrainingGroup);
   app.add_option("--still-check", p.train.still_check_iterations,
-                 "N iterations after the warm-up, bake the field in and train static when it fits the frames less "
-                 "than --still-gain dB better than its bake, and no image region more than --still-region-gain dB "
-                 "(0 = off)")
+                 "N iterations after the warm-up, bake the field in and train static when it fits the frames held "
+                 "back for the check (--still-holdout-every) less than --still-gain dB better than its bake, and no "
+                 "image region more than --still-region-gain dB (0 = off)")
       ->transform(at_least(0))
       ->group(kSkipGroup);
   app.add_option("--still-gain", p.train.still_gain_db, "see --still-check (dB)")->check(finite())->group(kSkipGroup);
   app.add_option("--still-region-gain", p.train.still_region_gain_db, "see --still-check (dB)")
       ->check(finite())
+      ->group(kSkipGroup);
+  app.add_option("--still-holdout-every", p.train.still_holdout_every,
+                 "see --still-check: training frames i with i % K == K/2 are not trained on until the check, which "
+                 "compares on them (0 = compare on training frames)")
+      ->check(number_where([](double x) { return x == 0 || (x >= 2 && x == std::floor(x)); },
+                           "must be 0 or a whole number >= 2", "K"))
       ->group(kSkipGroup);
   app.add_option("--plateau-window", p.train.plateau_window,
                  "stop when the mean loss over N iterations (whole passes) improves by less than "

@@ -289,6 +289,7 @@ int run(const Args& a, const RunInvocation& invocation) {
   p.still_check_iterations = levers.still_check_iterations;
   p.still_gain_db = levers.still_gain_db;
   p.still_region_gain_db = levers.still_region_gain_db;
+  p.still_holdout_every = levers.still_holdout_every;
   p.plateau_window = levers.plateau_window;
   p.plateau_tolerance = levers.plateau_tolerance;
   p.densify_params.max_gaussians = levers.densify_params.max_gaussians;

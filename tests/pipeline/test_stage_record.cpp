@@ -143,6 +143,7 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
       {"background rate, not learned", [](TrainParams& t) { t.background_lr = 0.5; }},
       {"still samples, check off", [](TrainParams& t) { t.still_bake_samples = 8; }},
       {"still region gain, check off", [](TrainParams& t) { t.still_region_gain_db = 1.5; }},
+      {"still holdout, check off", [](TrainParams& t) { t.still_holdout_every = 5; }},
       {"coarse fraction, coarse off", [](TrainParams& t) { t.coarse_fraction = 0.75; }},
       {"plateau tolerance, plateau off", [](TrainParams& t) { t.plateau_tolerance = 0.02; }},
       {"time noise steps, noise off", [](TrainParams& t) { t.time_noise_steps = 1000; }},
@@ -165,6 +166,12 @@ TEST_CASE("stage records: training settings key what changes the result, not wha
   TrainParams random_bg_other = random_bg;
   random_bg_other.densify_params.max_screen_fraction = 0.3;
   CHECK(key(random_bg_other) != key(random_bg));
+  // The frames the check holds back are keyed when it runs.
+  TrainParams checked = base;
+  checked.still_check_iterations = 500;
+  TrainParams checked_other = checked;
+  checked_other.still_holdout_every = 0;
+  CHECK(key(checked_other) != key(checked));
   // A static reconstruction ignores every deformation setting.
   TrainParams still = base;
   still.deformable = false;

@@ -1,9 +1,9 @@
 // The still-scene check's measure means something: a deformation field fitted to
-// a moving object gains more over its MedianGS bake than one fitted to a still
-// scene, and at the default thresholds (TrainParams::still_gain_db,
-// still_region_gain_db) one whose object moves only in part is kept, which the
-// whole-image figure alone would bake, while a still scene is under the
-// whole-image threshold (its best region is not pinned: see the test). Quality checks of short trainings (registered in normal builds
+// a moving object gains more over its MedianGS bake, on the frames held back for
+// the check, than one fitted to a still scene, and at the default thresholds
+// (TrainParams::still_gain_db, still_region_gain_db) one whose object moves only
+// in part is kept, while a still scene is under the whole-image threshold (its
+// best region is not pinned: see the test). Quality checks of short trainings (registered in normal builds
 // only; the check's code paths run sanitized in train.training_levers).
 #include <catch2/catch.hpp>
 
@@ -107,8 +107,11 @@ TEST_CASE("still-scene check at the default thresholds: a part that moves is kep
   INFO("still: " << still_verdict_text(still));
   INFO("top 15 % of the object moving: " << still_verdict_text(part));
   CHECK_FALSE(part.field_baked);
-  // The whole-image mean alone would have baked the moving part away.
-  CHECK(part.field_gain_db < defaults.still_gain_db);
+  // The part's gain is where it moves: its best region gains more than the
+  // whole image. (On the held-back frames the whole-image figure, 0.61 dB
+  // against 0.25, keeps it too; on the training frames it was under 1.0 dB, the
+  // threshold of a check on those.)
+  CHECK(part.field_region_gain_db > part.field_gain_db + 0.5);
   // The still scene is below the whole-image threshold. Its best 4 x 4-pixel
   // region is not pinned here: on two machines it came out at 0.77 and 1.27 dB
   // (the threshold is 1.1), the trajectories of a 600-iteration fit differing

@@ -219,6 +219,22 @@ TEMPLATE_TEST_CASE("still check: the iteration it runs at, and the PSNR it compa
   CHECK(fit_psnr(a, b) == 100.0);
 }
 
+TEST_CASE("still check: the frames held back for it", "[train][parts]") {
+  TrainParams p;  // still_holdout_every 7: frames 3, 10, 17, ...
+  CHECK(still_check_frames(p, 29) == std::vector<std::size_t>{3, 10, 17, 24});
+  CHECK_FALSE(held_for_still_check(p, 0));
+  CHECK(held_for_still_check(p, 10));
+  // Too few frames to hold one back: up to 8 spread over all of them.
+  CHECK(still_check_frames(p, 3) == std::vector<std::size_t>{0, 1, 2});
+  p.still_holdout_every = 0;
+  CHECK_FALSE(held_for_still_check(p, 3));
+  CHECK(still_check_frames(p, 16) == std::vector<std::size_t>{0, 2, 4, 6, 8, 10, 12, 14});
+  p.still_holdout_every = 2;  // every other frame from frame 1
+  CHECK(still_check_frames(p, 5) == std::vector<std::size_t>{1, 3});
+  p.still_holdout_every = 1;  // would hold back every frame
+  CHECK_THROWS_WITH(check_still_params(p), Catch::Contains("still_holdout_every"));
+}
+
 TEMPLATE_TEST_CASE("still check: the region figure finds a change the whole-image mean dilutes", "[train][parts]", float,
                    double) {
   // 64x64 frames, regions of 8x8 pixels: the deformed render is off by 0.05

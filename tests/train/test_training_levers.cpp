@@ -84,6 +84,27 @@ TEST_CASE("still-scene check: a field that gains too little is baked in and trai
   REQUIRE(moving.last_progress().deforming);
 }
 
+TEST_CASE("still-scene check: the frames it compares on are held back from training until it has decided",
+          "[train][levers]") {
+  const auto frames = frames_for_levers();  // 6 frames: frame 3 is held back (still_holdout_every 7)
+  TrainParams p = still_check_params();
+  p.still_gain_db = -1e6;  // the field is kept, so training goes on deformable
+  REQUIRE(still_check_frames(p, frames.size()) == std::vector<std::size_t>{3});
+  std::vector<int> before(frames.size(), 0), after(frames.size(), 0);
+  Trainer<float> t(frames, lever_init(frames), p);
+  t.train(300, [&](const TrainProgress& pr) { (pr.iteration <= 150 ? before : after)[pr.frame] += 1; });
+  REQUIRE(t.last_progress().shortcuts.still_checked);
+  CHECK(before[3] == 0);
+  CHECK(after[3] > 0);
+  for (std::size_t i : {0, 1, 2, 4, 5}) CHECK(before[i] > 0);
+  // With none held back every frame is drawn from the start.
+  p.still_holdout_every = 0;
+  std::vector<int> all(frames.size(), 0);
+  Trainer<float> u(frames, lever_init(frames), p);
+  u.train(150, [&](const TrainProgress& pr) { all[pr.frame] += 1; });
+  CHECK(all[3] > 0);
+}
+
 TEST_CASE("still-scene check under coarse-to-fine: the iterations up to the check train at full size",
           "[train][levers]") {
   const auto frames = frames_for_levers();

@@ -102,6 +102,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
     if (t.time_noise != 0) j["deformation"]["time_noise"] = {t.time_noise, t.time_noise_steps};
     if (t.still_check_iterations > 0)
       j["still_check"] = {{"iterations", t.still_check_iterations},
+                          {"holdout_every", t.still_holdout_every},
                           {"gain_db", t.still_gain_db},
                           {"region_gain_db", t.still_region_gain_db},
                           {"bake_samples", t.still_bake_samples}};

@@ -15,9 +15,11 @@
 namespace orbitforge {
 
 // The still check's figures, its thresholds and its decision ("baked": the field
-// was baked in and training went on static; "kept").
+// was baked in and training went on static; "kept"); holdout_every: the rule of
+// the frames it compared on (TrainParams::still_holdout_every).
 inline nlohmann::json still_check_json(const ShortcutState& sc, const TrainParams& p, int iteration) {
   return {{"iteration", iteration},
+          {"holdout_every", p.still_holdout_every},
           {"gain_db", sc.field_gain_db},
           {"region_gain_db", sc.field_region_gain_db},
           {"region", {sc.field_region / kStillRegions, sc.field_region % kStillRegions}},

@@ -1,9 +1,9 @@
 #pragma once
 // The still-scene check (TrainParams::still_check_iterations): some time after
 // the deformation warm-up, bake the field (MedianGS) and compare how well the
-// bake and the deformed model fit training frames. A field that gains too little
-// over its bake is not worth its cost: the bake replaces the scene and training
-// goes on static.
+// bake and the deformed model fit frames held back from training until then. A
+// field that gains too little over its bake is not worth its cost: the bake
+// replaces the scene and training goes on static.
 //
 // Two figures decide, and the field is kept when either reaches its threshold:
 //   gain_db         the mean over the frames of the deformed model's PSNR minus
@@ -16,10 +16,13 @@
 //                   tiny errors.
 // A part of the object that moves changes a few regions and is diluted in the
 // whole-image mean; the region figure keeps it. The rank and the floor were
-// chosen on three recorded videos with and without a moving part (the largest
-// margin between the two sets was rank 1, floor 1e-4) and checked on two others
-// (docs/benchmarks.md): every moving part was kept, and so was a still video's
-// field where the generated frames themselves change (a plinth that wobbles).
+// chosen on three recorded videos with and without a moving part (rank 1, floor
+// 1e-4) and checked on two others (docs/benchmarks.md).
+// The frames compared on are held back from training until the check
+// (TrainParams::still_holdout_every): fit to a frame, a field also absorbs the
+// generated frame's own changes, and on training frames a still video's best
+// region gained as much as a moving part's; on frames it has not seen, a field
+// gains where motion follows from the neighbouring frames in time.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -46,6 +49,28 @@ inline void check_still_params(const TrainParams& p) {
              p.still_bake_samples >= 2,
          "Trainer: still_check_iterations must be >= 0, still_gain_db and still_region_gain_db finite and "
          "still_bake_samples >= 2");
+  ensure(p.still_holdout_every == 0 || p.still_holdout_every >= 2,
+         "Trainer: still_holdout_every must be 0 (no frame held back) or >= 2, got ", p.still_holdout_every);
+}
+
+// Whether training frame `frame` is held back for the still check
+// (TrainParams::still_holdout_every). Frame 0 never is, so training always has
+// a frame to draw.
+inline bool held_for_still_check(const TrainParams& p, std::size_t frame) {
+  const std::size_t k = p.still_holdout_every >= 2 ? std::size_t(p.still_holdout_every) : 0;
+  return k != 0 && frame % k == k / 2;
+}
+
+// The frames of `count` training frames the check compares on: those held back,
+// or, when none is, up to 8 spread over all of them.
+inline std::vector<std::size_t> still_check_frames(const TrainParams& p, std::size_t count) {
+  std::vector<std::size_t> held;
+  for (std::size_t i = 0; i < count; ++i)
+    if (held_for_still_check(p, i)) held.push_back(i);
+  if (!held.empty()) return held;
+  const std::size_t k = std::min<std::size_t>(8, count);
+  for (std::size_t j = 0; j < k; ++j) held.push_back(j * count / k);
+  return held;
 }
 
 // The iteration at whose end the check runs (0: it does not), given the
@@ -141,21 +166,24 @@ struct StillVerdict {
   bool bake = false;
 };
 
-// The check on up to 8 training frames spread over `frames`. render_deformed(camera,
+// The check on frames[i] for i in `compare` (still_check_frames). render_deformed(camera,
 // time) renders the deformed model (an image valid until `renderer` renders again).
 template <class Scalar, class RenderDeformed>
 StillVerdict<Scalar> check_still_scene(const GaussianScene<Scalar>& scene, const DeformationField<Scalar>& field,
-                                       const std::vector<TrainFrame<Scalar>>& frames, Renderer<Scalar>& renderer,
+                                       const std::vector<TrainFrame<Scalar>>& frames,
+                                       const std::vector<std::size_t>& compare, Renderer<Scalar>& renderer,
                                        const TrainParams& p, RenderDeformed&& render_deformed) {
+  ensure(!compare.empty(), "check_still_scene: no frame to compare on");
   MedianBakeParams mp;
   mp.samples = p.still_bake_samples;
   mp.threads = p.threads;
   StillVerdict<Scalar> v;
   v.baked = bake_median(scene, FieldDeformation<Scalar>(field, p.threads), mp);
-  const std::size_t k = std::min<std::size_t>(8, frames.size());
+  const std::size_t k = compare.size();
   RegionErrors deformed_regions, baked_regions;
   for (std::size_t j = 0; j < k; ++j) {
-    const TrainFrame<Scalar>& f = frames[j * frames.size() / k];
+    ensure(compare[j] < frames.size(), "check_still_scene: frame ", compare[j], " of ", frames.size());
+    const TrainFrame<Scalar>& f = frames[compare[j]];
     RegionErrors deformed, baked;  // this frame's
     deformed.add(render_deformed(f.camera, f.time), f.image);
     baked.add(renderer.render(SceneView<Scalar>(v.baked), f.camera).color, f.image);

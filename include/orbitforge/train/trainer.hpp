@@ -202,7 +202,10 @@ class Trainer {
     if (s_.field) s_.field_adam.set_lr(0, Scalar(deformation_lr(params_)(it)));
     if (schedule_.raises_sh_degree_at(it) && s_.scene.sh_degree < params_.max_sh_degree) raise_sh_degree(s_.scene);
 
-    const std::size_t fi = s_.order.next(s_.rng);
+    std::size_t fi = s_.order.next(s_.rng);
+    // Until the still check, the frames it compares on are not trained on.
+    if (s_.field && it <= still_check_iteration())
+      while (held_for_still_check(params_, fi)) fi = s_.order.next(s_.rng);
     const int level = image_level_at(it);
     const TrainFrame<Scalar>& frame = level == 0 ? frames_[fi] : coarse_.at(frames_, fi, level);
     const bool deforming = deforming_at(it);
@@ -274,7 +277,7 @@ class Trainer {
   // order, so the optimizer's moments still belong to their Gaussians.
   void check_still() {
     StillVerdict<Scalar> v = check_still_scene(
-        s_.scene, *s_.field, frames_, renderer_, params_,
+        s_.scene, *s_.field, frames_, still_check_frames(params_, frames_.size()), renderer_, params_,
         [this](const Camera<Scalar>& camera, Scalar time) -> const Image<Scalar>& { return render(camera, time); });
     record_still_verdict(v, s_.shortcuts);
     if (!v.bake) return;
