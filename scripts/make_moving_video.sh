@@ -33,10 +33,12 @@ mkdir -p "$dst/images" "$dst/sparse"
 cp -r "$src/sparse/0" "$dst/sparse/0"
 a=$amp
 shift_frame="pad=iw+2*$a:ih+2*$a:$a:$a:white,crop=iw-2*$a:ih-2*$a:$a+$a*sin(2*PI*n/$period):$a+$a*cos(2*PI*n/$period)"
-if [[ $part == part ]]; then
-  filter="format=rgb24,split[base][moved];[moved]$shift_frame,crop=iw/2:ih/4:iw/4:ih/4[box];[base][box]overlay=W/4:H/4:format=rgb"
-elif [[ $part == small ]]; then
-  filter="format=rgb24,split[base][moved];[moved]$shift_frame,crop=iw/4:ih/8:iw*3/8:ih/4[box];[base][box]overlay=W*3/8:H/4:format=rgb"
+case $part in  # the moving box: its crop (w:h:x:y) and where it goes back
+  part) box=iw/2:ih/4:iw/4:ih/4 at=W/4:H/4 ;;
+  small) box=iw/4:ih/8:iw*3/8:ih/4 at=W*3/8:H/4 ;;
+esac
+if [[ -n $part ]]; then
+  filter="format=rgb24,split[base][moved];[moved]$shift_frame,crop=$box[box];[base][box]overlay=$at:format=rgb"
 else
   filter=$shift_frame
 fi
