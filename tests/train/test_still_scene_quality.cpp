@@ -3,8 +3,9 @@
 // the check, than one fitted to a still scene, and at the default thresholds
 // (TrainParams::still_gain_db, still_region_gain_db) one whose object moves only
 // in part is kept, while a still scene is under the whole-image threshold (its
-// best region is not pinned: see the test). Quality checks of short trainings (registered in normal builds
-// only; the check's code paths run sanitized in train.training_levers).
+// best region is not pinned: see the test). Quality checks of short trainings
+// (registered in normal builds only; the check's code paths run sanitized in
+// train.training_levers).
 #include <catch2/catch.hpp>
 
 #include <algorithm>
