@@ -22,11 +22,13 @@
 // against BM_ExpBlendLoop: the same evaluation (conic power, exp, alpha, colour
 // and transmittance blend) in a plain SIMD loop with every operand in registers
 // or L1, the speed one core sustains without tiles, lists or early stops.
+// BM_PerGaussianMemory: the memory traffic of the per-Gaussian stages without
+// their arithmetic (the floor under gauss_ns_g; see the function).
 // BM_RasterKernelsScene: the same kernels on a scene of your own, e.g. one that
 // full_pipeline trained, at every K-th camera of a camera or orbit file; it is
 // registered only when the environment names them:
-//   ORBITFORGE_BENCH_PLY=out/doll/final.ply ORBITFORGE_BENCH_CAMERAS=out/doll/orbit.json \
-//   [ORBITFORGE_BENCH_EVERY=24] bench_render --benchmark_filter=Scene
+//   ORBITFORGE_BENCH_PLY=out/doll/final.ply ORBITFORGE_BENCH_CAMERAS=out/doll/orbit.json
+//   [ORBITFORGE_BENCH_EVERY=24] bench_render --benchmark_filter=Scene   (one command line)
 //
 //   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
 #include <benchmark/benchmark.h>
@@ -35,6 +37,7 @@
 #include <cmath>
 #include <map>
 #include <memory>
+#include <algorithm>
 #include <random>
 #include <cstdlib>
 #include <ctime>
@@ -378,6 +381,65 @@ void BM_ExpBlendLoop(benchmark::State& state) {
   state.counters["ns_eval"] = (thread_cpu_ms() - t0) * 1e6 / evals;  // thread CPU time, as BM_RasterKernels
 }
 
+// The memory traffic the per-Gaussian stages cannot avoid as they are laid out,
+// one thread, on the ball scene (Arg: Gaussians), without their arithmetic:
+//   scene_ns_g   reading every parameter of the scene once (what projection reads;
+//                degree-3 SH is 192 of its 236 bytes per Gaussian)
+//   soa_ns_g     writing the projection's 15 output arrays and reading them back
+//                (what packing reads)
+//   gather_ns_g  copying 64-byte records into depth order through a random
+//                permutation, prefetched 40 ahead (binning's permute pass)
+// Their sum (floor_ns_g) set against BM_ForwardBall's gauss_ns_g says how much
+// of the per-Gaussian stages is memory.
+void BM_PerGaussianMemory(benchmark::State& state) {
+  using B = simd::native_batch<float>;
+  const std::size_t n = std::size_t(state.range(0));
+  const auto& s = scene(n, true);
+  constexpr std::size_t kSoaArrays = 15;
+  std::vector<float> soa(kSoaArrays * n, 1.f);
+  std::vector<SplatRecord<float>> packed(n), ranked(n);
+  std::vector<std::int32_t> perm(n);
+  for (std::size_t i = 0; i < n; ++i) perm[i] = std::int32_t(i);
+  std::shuffle(perm.begin(), perm.end(), std::mt19937(99));
+  auto sum_of = [](const float* p, std::size_t count) {
+    B acc(0.f);
+    std::size_t i = 0;
+    for (; i + B::size <= count; i += B::size) acc += B::load_unaligned(p + i);
+    float r = simd::hadd(acc);
+    for (; i < count; ++i) r += p[i];
+    return r;
+  };
+  double scene_ms = 0, soa_ms = 0, gather_ms = 0;
+  for (auto _ : state) {
+    const double t0 = thread_cpu_ms();
+    float sum = 0;
+    for (const auto* v : {&s.means, &s.rotations, &s.log_scales, &s.opacity_logits, &s.sh})
+      sum += sum_of(v->data(), v->size());
+    const double t1 = thread_cpu_ms();
+    for (std::size_t a = 0; a < kSoaArrays; ++a) std::fill_n(soa.data() + a * n, n, sum);
+    for (std::size_t a = 0; a < kSoaArrays; ++a) sum += sum_of(soa.data() + a * n, n);
+    const double t2 = thread_cpu_ms();
+    for (std::size_t r = 0; r < n; ++r) {
+#if defined(__GNUC__)
+      if (r + 40 < n) __builtin_prefetch(&packed[std::size_t(perm[r + 40])]);
+#endif
+      ranked[r] = packed[std::size_t(perm[r])];
+    }
+    const double t3 = thread_cpu_ms();
+    benchmark::DoNotOptimize(sum);
+    benchmark::DoNotOptimize(ranked.data());
+    benchmark::ClobberMemory();
+    scene_ms += t1 - t0;
+    soa_ms += t2 - t1;
+    gather_ms += t3 - t2;
+  }
+  const double per_g = 1e6 / double(state.iterations()) / double(n);
+  state.counters["scene_ns_g"] = scene_ms * per_g;
+  state.counters["soa_ns_g"] = soa_ms * per_g;
+  state.counters["gather_ns_g"] = gather_ms * per_g;
+  state.counters["floor_ns_g"] = (scene_ms + soa_ms + gather_ms) * per_g;
+}
+
 void sizes(benchmark::internal::Benchmark* b, bool with_extents) {
   for (auto wh : {std::pair<int, int>{256, 256}, {512, 512}, {896, 512}})
     for (int n : {10000, 100000, 300000})
@@ -403,6 +465,7 @@ BENCHMARK(BM_ForwardBall)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(0.3);
+BENCHMARK(BM_PerGaussianMemory)->ArgName("n")->Arg(100000)->Arg(300000)->Unit(benchmark::kMillisecond)->MinTime(0.3);
 BENCHMARK(BM_RasterKernels)
     ->ArgNames({"w", "h", "n"})
     ->Args({256, 256, 10000})
