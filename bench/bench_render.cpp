@@ -33,11 +33,11 @@
 //   build-raster/bench/bench_render --benchmark_filter=Forward/512/512/100000
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <map>
 #include <memory>
-#include <algorithm>
 #include <random>
 #include <cstdlib>
 #include <ctime>
