@@ -41,6 +41,17 @@
 namespace orbitforge {
 namespace simd {
 
+// Number of set bits (of a mask_bits result).
+inline int popcount(std::uint64_t bits) {
+#if defined(__GNUC__) || defined(__clang__)
+  return __builtin_popcountll(bits);
+#else
+  int n = 0;
+  for (; bits != 0; bits &= bits - 1) ++n;
+  return n;
+#endif
+}
+
 // ---------------------------------------------------------------- scalar path
 template <class T>
 struct scalar_mask {

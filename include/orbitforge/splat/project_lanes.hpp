@@ -357,6 +357,24 @@ inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B:
       for (int j = 0; j < count; ++j) dst[f][i0 + std::size_t(j)] = buf[j];
     }
   }
+  // A whole batch that the reference decides nowhere (nearly all of them):
+  // the outcome counts from the codes' masks and the integer fields without a
+  // branch per lane (a culled lane gets radius 0 and an empty rect of zeros).
+  if (count == W && !simd::any(code >= B(Scalar(kLaneScalar)))) {
+    for (int r = 0; r < 5; ++r) local[r] += std::size_t(simd::popcount(simd::mask_bits(code == B(Scalar(r)))));
+    const M vis = code == zero;
+    alignas(64) Scalar f[5][W];
+    simd::select(vis, radius, zero).store_unaligned(f[0]);
+    simd::select(vis, x0, zero).store_unaligned(f[1]);
+    simd::select(vis, y0, zero).store_unaligned(f[2]);
+    simd::select(vis, x1, zero).store_unaligned(f[3]);
+    simd::select(vis, y1, zero).store_unaligned(f[4]);
+    std::int32_t* ints[5] = {out.radius.data() + i0, out.rect_x0.data() + i0, out.rect_y0.data() + i0,
+                             out.rect_x1.data() + i0, out.rect_y1.data() + i0};
+    for (int k = 0; k < 5; ++k)
+      for (int j = 0; j < W; ++j) ints[k][j] = std::int32_t(f[k][j]);
+    return;
+  }
   alignas(64) Scalar codes[W], rad[W], rx0[W], ry0[W], rx1[W], ry1[W];
   code.store_unaligned(codes);
   radius.store_unaligned(rad);
