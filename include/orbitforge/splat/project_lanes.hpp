@@ -359,7 +359,7 @@ inline void project_lanes(const Scene& scene, const ProjectionCamera<typename B:
   }
   // A whole batch that the reference decides nowhere (nearly all of them):
   // the outcome counts from the codes' masks and the integer fields without a
-  // branch per lane (a culled lane gets radius 0 and an empty rect of zeros).
+  // branch per lane (a culled lane gets radius 0 and a rectangle of zeros).
   if (count == W && !simd::any(code >= B(Scalar(kLaneScalar)))) {
     for (int r = 0; r < 5; ++r) local[r] += std::size_t(simd::popcount(simd::mask_bits(code == B(Scalar(r)))));
     const M vis = code == zero;
