@@ -140,8 +140,11 @@ inline void add_reconstruction_flags(CLI::App& app, PipelineFlags& f) {
       ->transform(at_least(0))
       ->group(kSkipGroup);
   app.add_option("--coarse-levels", p.train.coarse_levels,
-                 "the first --coarse-fraction of training on frames downsampled by up to 2^L (0 = off)")
-      ->transform(at_least(0))
+                 "the first --coarse-fraction of training on frames downsampled by up to 2^L (0 = off; -1 = one "
+                 "level where a reconstruction's budget is at least 10,000 iterations, else off: full_pipeline's "
+                 "and audit's default)")
+      ->check(number_where([](double x) { return x == std::floor(x) && x >= -1 && x <= 6; },
+                           "must be a whole number from -1 to 6", "L"))
       ->group(kSkipGroup);
   app.add_option("--coarse-fraction", p.train.coarse_fraction, "see --coarse-levels")
       ->check(finite())

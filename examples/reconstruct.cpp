@@ -90,8 +90,9 @@ struct Args {
     shared.frames = "1-";            // every frame
     shared.params.iters_g0 = 30000;  // reconstruct's own default (the pipeline's is 3000)
     // One reconstruction trains as asked, as TrainParams does; the method's
-    // still check (PipelineParams) is a flag away.
+    // still check and coarse-to-fine by budget (PipelineParams) are a flag away.
     shared.params.train.still_check_iterations = TrainParams{}.still_check_iterations;
+    shared.params.train.coarse_levels = TrainParams{}.coarse_levels;
   }
 };
 

@@ -96,6 +96,7 @@ TEST_CASE("protocol paper: every setting as published", "[pipeline][protocol]") 
   // reconstructed at the canonical cameras; re-estimating cameras from the
   // completed video is argued against there.
   CHECK_FALSE(p.recalibrate.enabled);
+  CHECK(p.train.coarse_levels == 0);  // the published training runs at full size throughout
   CHECK(protocol_loads_native_size(Protocol::paper));
 }
 
@@ -111,6 +112,9 @@ TEST_CASE("protocol measured: the defaults, untouched", "[pipeline][protocol]") 
   CHECK(a.train.still_check_iterations == 500);
   CHECK(b.train.still_check_iterations == 500);
   CHECK(TrainParams{}.still_check_iterations == 0);
+  // Coarse-to-fine by the budget: on at the paper's 10,000 iterations, off at 3,000.
+  CHECK(b.train.coarse_levels == kCoarseLevelsByBudget);
+  CHECK(TrainParams{}.coarse_levels == 0);
   // On the user's path G1's cameras are estimated again with the completion,
   // the lens held (docs/cameras.md).
   CHECK(b.recalibrate.enabled);

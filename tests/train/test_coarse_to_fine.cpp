@@ -27,6 +27,43 @@ TEST_CASE("coarse-to-fine: the level falls from coarse_levels to 0 over coarse_f
   REQUIRE_THROWS_WITH((Trainer<float>({}, GaussianScene<float>{}, p)), Catch::Contains("Trainer"));
 }
 
+TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none below", "[train][coarse]") {
+  TrainParams p;
+  p.coarse_levels = kCoarseLevelsByBudget;
+  for (const auto& [iters, levels] : {std::pair<int, int>{3000, 0}, {9999, 0}, {10000, 1}, {30000, 1}}) {
+    p.iterations = iters;
+    CHECK(resolved_coarse_levels(p) == levels);
+  }
+  p.coarse_levels = 0;  // an explicit choice holds at any budget
+  CHECK(resolved_coarse_levels(p) == 0);
+  p.coarse_levels = 2;
+  p.iterations = 3000;
+  CHECK(resolved_coarse_levels(p) == 2);
+
+  // The trainer trains at the resolved schedule: half size after the still
+  // check up to half the budget, at 10,000 iterations only.
+  const auto frames = orbitforge_test::tiny_frames<float>(4, 32, 32);
+  std::vector<Camera<float>> cams;
+  for (const auto& f : frames) cams.push_back(f.camera);
+  InitParams ip;
+  ip.random_points = 50;
+  TrainParams t;
+  t.coarse_levels = kCoarseLevelsByBudget;
+  t.iterations = 10000;
+  const Trainer<float> paper_budget(frames, init_random(cams, camera_extent(cams), ip), t);
+  CHECK(paper_budget.params().coarse_levels == 1);
+  CHECK(paper_budget.image_level_at(1) == 1);
+  CHECK(paper_budget.image_level_at(5000) == 1);
+  CHECK(paper_budget.image_level_at(5001) == 0);
+  t.iterations = 3000;
+  const Trainer<float> default_budget(frames, init_random(cams, camera_extent(cams), ip), t);
+  CHECK(default_budget.params().coarse_levels == 0);
+  CHECK(default_budget.image_level_at(1) == 0);
+  t.coarse_levels = -2;
+  CHECK_THROWS_WITH((Trainer<float>(frames, init_random(cams, camera_extent(cams), ip), t)),
+                    Catch::Contains("coarse_levels must be 0..6"));
+}
+
 TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-size training", "[train][coarse]") {
   const auto frames = orbitforge_test::tiny_frames<float>(6, 48, 64);
   auto fit = [&](int levels) {

@@ -52,10 +52,13 @@ struct RunInvocation {
 // is shown to gain nothing over its bake; a moving one keeps the field. On the
 // recorded videos at the default budget the check baked two of five (G0
 // 0.54-0.60x, the whole method 0.72-0.77x, R1 within 0.21 dB) and kept the
-// others at no measurable cost (docs/benchmarks.md). --protocol paper turns it off.
+// others at no measurable cost (docs/benchmarks.md). And coarse-to-fine by the
+// budget (kCoarseLevelsByBudget: one level from 10,000 iterations, none below).
+// --protocol paper turns both off.
 inline TrainParams method_train_defaults() {
   TrainParams t;
   t.still_check_iterations = 500;
+  t.coarse_levels = kCoarseLevelsByBudget;
   return t;
 }
 

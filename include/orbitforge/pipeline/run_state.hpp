@@ -154,6 +154,7 @@ struct PipelineRun {
     check_train_owners(params, input->background, input->random_background);
     TrainParams t = params.train;
     t.iterations = iters;
+    t.coarse_levels = resolved_coarse_levels(t);  // by this budget: the stage's key names what it trains
     t.deformable = deformable;
     t.seed = params.seed;
     t.threads = params.threads;

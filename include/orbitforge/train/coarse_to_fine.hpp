@@ -14,10 +14,26 @@
 
 namespace orbitforge {
 
+// coarse_levels chosen by the budget (the method's default, pipeline/params.hpp):
+// at 10,000 iterations a half-size first half kept R1 within run-to-run spread
+// on the recorded videos and took 11-23 % off the method's time; at 3,000 it
+// cost 0.6 to 0.9 dB held out, too few full-size iterations being left to
+// recover the detail (docs/benchmarks.md, "Coarse-to-fine and the plateau stop
+// at the paper's budget").
+constexpr int kCoarseLevelsByBudget = -1;
+constexpr int kCoarseByBudgetFrom = 10000;
+
+// p.coarse_levels with kCoarseLevelsByBudget resolved against p.iterations.
+inline int resolved_coarse_levels(const TrainParams& p) {
+  if (p.coarse_levels != kCoarseLevelsByBudget) return p.coarse_levels;
+  return p.iterations >= kCoarseByBudgetFrom ? 1 : 0;
+}
+
 inline void check_coarse_params(const TrainParams& p) {
-  ensure(p.coarse_levels >= 0 && p.coarse_levels <= 6 && p.coarse_fraction >= 0 && p.coarse_fraction <= 1,
-         "Trainer: coarse_levels must be 0..6 and coarse_fraction 0..1, got ", p.coarse_levels, " and ",
-         p.coarse_fraction);
+  ensure(p.coarse_levels >= kCoarseLevelsByBudget && p.coarse_levels <= 6 && p.coarse_fraction >= 0 &&
+             p.coarse_fraction <= 1,
+         "Trainer: coarse_levels must be 0..6 (or -1: by the budget) and coarse_fraction 0..1, got ",
+         p.coarse_levels, " and ", p.coarse_fraction);
 }
 
 // The image level of iteration `it` (1-based) under the coarse-to-fine schedule:

@@ -94,7 +94,9 @@ struct TrainParams {
   // Coarse-to-fine: the first coarse_fraction of the budget trains on frames
   // downsampled by 2^level (2x2 box filter per level, focal length and principal
   // point scaled by the same 2^-level), level falling linearly from
-  // coarse_levels to 0 over that span; the rest at full size. 0 = off. With the
+  // coarse_levels to 0 over that span; the rest at full size. 0 = off;
+  // kCoarseLevelsByBudget (-1): one level where the budget is at least
+  // kCoarseByBudgetFrom iterations, else off (resolved_coarse_levels). With the
   // still-scene check on, the iterations up to the check train at full size.
   int coarse_levels = 0;
   double coarse_fraction = 0.5;

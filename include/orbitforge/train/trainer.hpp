@@ -65,12 +65,12 @@ class Trainer {
   // `frames` must outlive the trainer. `initial` is the starting scene (see
   // train/init.hpp); its SH degree is the starting active degree.
   Trainer(const std::vector<TrainFrame<Scalar>>& frames, GaussianScene<Scalar> initial, const TrainParams& params)
-      : frames_(frames), params_(params), schedule_(TrainSchedule::make(params, draws_per_pass(frames))) {
+      : frames_(frames), params_(resolved(params)), schedule_(TrainSchedule::make(params_, draws_per_pass(frames))) {
     check_train_frames(frames_);
     resolve_threads(params.threads, "TrainParams::threads");  // over the limit: refused before anything is built
     check_still_params(params);
     check_plateau_params(params);
-    check_coarse_params(params);
+    check_coarse_params(params_);
     GaussianScene<Scalar>& scene = s_.scene = std::move(initial);
     scene.check_consistent();
     ensure(!scene.empty(), "Trainer: the initial scene has no Gaussians");
@@ -101,8 +101,8 @@ class Trainer {
     s_.rng.seed(params.seed);
     s_.order = FrameOrder(std::move(repeats));
     densify_ = DensifyDriver<Scalar>(params, schedule_.densify, longer_side(frames_));
-    plateau_ = PlateauStop::make(params, s_.order.pass_length(),
-                                 plateau_quiet_from(params, schedule_, still_check_iteration()));
+    plateau_ = PlateauStop::make(params_, s_.order.pass_length(),
+                                 plateau_quiet_from(params_, schedule_, still_check_iteration()));
   }
 
   const TrainParams& params() const { return params_; }
@@ -287,6 +287,13 @@ class Trainer {
   }
 
   const std::vector<TrainFrame<Scalar>>& frames_;
+  // The caller's params with the budget's choices made (coarse_levels).
+  static TrainParams resolved(TrainParams p) {
+    check_coarse_params(p);
+    p.coarse_levels = resolved_coarse_levels(p);
+    return p;
+  }
+
   TrainParams params_;
   TrainSchedule schedule_;
   TrainState<Scalar> s_;
