@@ -69,8 +69,7 @@ class Trainer {
     check_train_frames(frames_);
     resolve_threads(params.threads, "TrainParams::threads");  // over the limit: refused before anything is built
     check_still_params(params);
-    check_plateau_params(params);
-    check_coarse_params(params_);
+    check_plateau_params(params);  // coarse_levels and coarse_fraction: checked by resolved()
     GaussianScene<Scalar>& scene = s_.scene = std::move(initial);
     scene.check_consistent();
     ensure(!scene.empty(), "Trainer: the initial scene has no Gaussians");
