@@ -46,8 +46,7 @@ template <class S>
 orbitforge::GaussianScene<S> tiny_init(const std::vector<orbitforge::TrainFrame<S>>& frames,
                                        std::size_t points = 300) {
   using namespace orbitforge;
-  std::vector<Camera<S>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
+  const auto cams = orbitforge::frame_cameras(frames);
   InitParams ip;
   ip.random_points = points;
   ip.seed = 3;

@@ -43,8 +43,7 @@ TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none belo
   // The trainer trains at the resolved schedule: half size after the still
   // check up to half the budget, at 10,000 iterations only.
   const auto frames = orbitforge_test::tiny_frames<float>(4, 32, 32);
-  std::vector<Camera<float>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
+  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 50;
   TrainParams t;
@@ -67,8 +66,7 @@ TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none belo
 TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-size training", "[train][coarse]") {
   const auto frames = orbitforge_test::tiny_frames<float>(6, 48, 64);
   auto fit = [&](int levels) {
-    std::vector<Camera<float>> cams;
-    for (const auto& f : frames) cams.push_back(f.camera);
+    const auto cams = frame_cameras(frames);
     InitParams ip;
     ip.random_points = 2000;
     TrainParams p;

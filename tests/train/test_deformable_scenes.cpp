@@ -31,8 +31,7 @@ struct Outcome {
 
 Outcome train(const std::vector<TrainFrame<float>>& frames, const std::vector<TrainFrame<float>>& heldout,
               bool deformable) {
-  std::vector<Camera<float>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
+  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 20000;
   TrainParams p;

@@ -34,8 +34,7 @@ TrainParams still_check_params() {
 }
 
 GaussianScene<float> lever_init(const std::vector<TrainFrame<float>>& frames) {
-  std::vector<Camera<float>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
+  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 1500;
   return init_random(cams, camera_extent(cams), ip);

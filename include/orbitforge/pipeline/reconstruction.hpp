@@ -159,8 +159,7 @@ GaussianScene<Scalar> initial_scene(const PipelineRun<Scalar>& run, const std::v
   ip.seed = run.params.seed;
   const SourcePoints<Scalar> sp = source_points(in);
   if (sp.kept >= 4) return init_from_points(sp.points, sp.colors, ip);
-  std::vector<Camera<Scalar>> cams;
-  for (const auto& f : frames) cams.push_back(f.camera);
+  const auto cams = frame_cameras(frames);
   Scalar extent = cams.size() > 1 ? camera_extent(cams) : Scalar(1);
   if (!(extent > Scalar(0))) extent = Scalar(1);
   ip.random_points = run.params.init_points;

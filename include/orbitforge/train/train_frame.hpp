@@ -22,6 +22,15 @@ struct TrainFrame {
   int repeats = 1;         // times the frame is drawn per pass over the frames (sampling weight, >= 1)
 };
 
+// The frames' cameras, in frame order.
+template <class Scalar>
+std::vector<Camera<Scalar>> frame_cameras(const std::vector<TrainFrame<Scalar>>& frames) {
+  std::vector<Camera<Scalar>> cams;
+  cams.reserve(frames.size());
+  for (const auto& f : frames) cams.push_back(f.camera);
+  return cams;
+}
+
 // The longest side, in pixels, of any frame's image.
 template <class Scalar>
 int longer_side(const std::vector<TrainFrame<Scalar>>& frames) {
