@@ -17,9 +17,10 @@ namespace orbitforge {
 // coarse_levels chosen by the budget (the method's default, pipeline/params.hpp):
 // at 10,000 iterations a half-size first half kept R1 within run-to-run spread
 // on the recorded videos and took 11-23 % off the method's time; at 3,000 it
-// cost 0.6 to 0.9 dB held out, too few full-size iterations being left to
-// recover the detail (docs/benchmarks.md, "Coarse-to-fine and the plateau stop
-// at the paper's budget").
+// cost 0.6 to 0.9 dB held out and at 5,000 up to 0.64 dB on withheld frames,
+// too few full-size iterations being left to recover the detail
+// (docs/benchmarks.md, "Coarse-to-fine and the plateau stop at the paper's
+// budget", "Coarse-to-fine at 5,000 iterations").
 constexpr int kCoarseLevelsByBudget = -1;
 constexpr int kCoarseByBudgetFrom = 10000;
 
