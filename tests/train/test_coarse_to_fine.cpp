@@ -30,7 +30,7 @@ TEST_CASE("coarse-to-fine: the level falls from coarse_levels to 0 over coarse_f
 TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none below", "[train][coarse]") {
   TrainParams p;
   p.coarse_levels = kCoarseLevelsByBudget;
-  for (const auto& [iters, levels] : {std::pair<int, int>{3000, 0}, {9999, 0}, {10000, 1}, {30000, 1}}) {
+  for (const auto& [iters, levels] : {std::pair<int, int>{3000, 0}, {5000, 0}, {9999, 0}, {10000, 1}, {30000, 1}}) {
     p.iterations = iters;
     CHECK(resolved_coarse_levels(p) == levels);
   }
@@ -43,23 +43,21 @@ TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none belo
   // The trainer trains at the resolved schedule: half size after the still
   // check up to half the budget, at 10,000 iterations only.
   const auto frames = orbitforge_test::tiny_frames<float>(4, 32, 32);
-  const auto cams = frame_cameras(frames);
-  InitParams ip;
-  ip.random_points = 50;
+  const auto init = orbitforge_test::tiny_init(frames, 50);
   TrainParams t;
   t.coarse_levels = kCoarseLevelsByBudget;
   t.iterations = 10000;
-  const Trainer<float> paper_budget(frames, init_random(cams, camera_extent(cams), ip), t);
+  const Trainer<float> paper_budget(frames, init, t);
   CHECK(paper_budget.params().coarse_levels == 1);
   CHECK(paper_budget.image_level_at(1) == 1);
   CHECK(paper_budget.image_level_at(5000) == 1);
   CHECK(paper_budget.image_level_at(5001) == 0);
   t.iterations = 3000;
-  const Trainer<float> default_budget(frames, init_random(cams, camera_extent(cams), ip), t);
+  const Trainer<float> default_budget(frames, init, t);
   CHECK(default_budget.params().coarse_levels == 0);
   CHECK(default_budget.image_level_at(1) == 0);
   t.coarse_levels = -2;
-  CHECK_THROWS_WITH((Trainer<float>(frames, init_random(cams, camera_extent(cams), ip), t)),
+  CHECK_THROWS_WITH((Trainer<float>(frames, init, t)),
                     Catch::Contains("coarse_levels must be 0..6"));
 }
 
