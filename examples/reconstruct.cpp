@@ -308,9 +308,7 @@ int run(const Args& a, const RunInvocation& invocation) {
   if (!d.points.empty()) {
     init = init_from_points(d.points, d.colors, ip);
   } else {
-    const auto cams = frame_cameras(d.train);
-    const S extent = cams.size() > 1 ? camera_extent(cams) : S(1);
-    init = init_random(cams, extent > S(0) ? extent : S(1), ip);
+    init = init_random(frame_cameras(d.train), ip);
   }
   Trainer<S> trainer(d.train, std::move(init), p);
 

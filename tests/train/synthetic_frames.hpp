@@ -46,11 +46,10 @@ template <class S>
 orbitforge::GaussianScene<S> tiny_init(const std::vector<orbitforge::TrainFrame<S>>& frames,
                                        std::size_t points = 300) {
   using namespace orbitforge;
-  const auto cams = orbitforge::frame_cameras(frames);
   InitParams ip;
   ip.random_points = points;
   ip.seed = 3;
-  return init_random(cams, camera_extent(cams), ip);
+  return init_random(frame_cameras(frames), ip);
 }
 
 // Training settings for these frames: one thread, a fixed seed, white background.

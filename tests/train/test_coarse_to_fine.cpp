@@ -64,7 +64,6 @@ TEST_CASE("coarse-to-fine by budget: one level from 10,000 iterations, none belo
 TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-size training", "[train][coarse]") {
   const auto frames = orbitforge_test::tiny_frames<float>(6, 48, 64);
   auto fit = [&](int levels) {
-    const auto cams = frame_cameras(frames);
     InitParams ip;
     ip.random_points = 2000;
     TrainParams p;
@@ -73,7 +72,7 @@ TEST_CASE("coarse-to-fine training fits the full-size frames as well as full-siz
     p.background = {1, 1, 1};
     p.min_densify_interval = 50;
     p.coarse_levels = levels;
-    Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);
+    Trainer<float> t(frames, init_random(frame_cameras(frames), ip), p);
     int coarse_steps = 0;
     while (t.iteration() < p.iterations) {
       const TrainProgress& pr = t.step();

@@ -31,7 +31,6 @@ struct Outcome {
 
 Outcome train(const std::vector<TrainFrame<float>>& frames, const std::vector<TrainFrame<float>>& heldout,
               bool deformable) {
-  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 20000;
   TrainParams p;
@@ -41,7 +40,7 @@ Outcome train(const std::vector<TrainFrame<float>>& frames, const std::vector<Tr
   p.min_densify_interval = 50;  // as reconstruct and the pipeline
   p.field.depth = 3;
   p.field.width = 32;
-  Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);
+  Trainer<float> t(frames, init_random(frame_cameras(frames), ip), p);
   Outcome o;
   while (t.iteration() < p.iterations) o.peak = std::max(o.peak, t.step().gaussians);
   o.gaussians = t.scene().size();

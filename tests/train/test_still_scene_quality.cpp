@@ -69,10 +69,9 @@ ShortcutState check_after_fit(const std::vector<TrainFrame<float>>& frames, doub
   p.still_check_iterations = 500;
   p.still_gain_db = gain_db;
   p.still_region_gain_db = region_gain_db;
-  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 1500;
-  Trainer<float> t(frames, init_random(cams, camera_extent(cams), ip), p);
+  Trainer<float> t(frames, init_random(frame_cameras(frames), ip), p);
   t.train(600);
   REQUIRE(t.shortcuts().still_checked);
   return t.shortcuts();

@@ -91,6 +91,36 @@ TEST_CASE("init_from_points: colours, opacity, scales", "[train][init]") {
   CHECK_THROWS_AS(init_from_points(pts, std::vector<double>(3)), Error);
 }
 
+TEMPLATE_TEST_CASE("init_random at the cameras' own scale: their extent, 1 without one", "[train][init]", float,
+                   double) {
+  using S = TestType;
+  std::vector<Camera<S>> cams(2);
+  for (auto& c : cams) c.intrinsics = Intrinsics<S>{S(50), S(50), S(16), S(16), 32, 32};
+  cams[0].t = Eigen::Matrix<S, 3, 1>(-2, 0, 0);  // centre (2, 0, 0)
+  cams[1].t = Eigen::Matrix<S, 3, 1>(2, 0, 0);
+  CHECK(camera_extent_or_one(cams) == Approx(2.2));
+  InitParams ip;
+  ip.random_points = 64;
+  ip.seed = 5;
+  CHECK(init_random(cams, ip).means == init_random(cams, camera_extent(cams), ip).means);
+
+  // One camera, or cameras at one point: no extent, so a unit scale (as the
+  // trainer's), and every point lies at depths [depth_min, depth_max] x 1.
+  const std::vector<Camera<S>> one(1, cams[0]);
+  CHECK(camera_extent_or_one(one) == S(1));
+  const std::vector<Camera<S>> bunched(3, cams[0]);
+  CHECK(camera_extent_or_one(bunched) == S(1));
+  const auto g = init_random(bunched, ip);
+  REQUIRE(g.size() == 64);
+  for (std::size_t i = 0; i < g.size(); ++i) {
+    const Eigen::Matrix<S, 3, 1> x(g.means[3 * i], g.means[3 * i + 1], g.means[3 * i + 2]);
+    const S z = (cams[0].R * x + cams[0].t).z();
+    CHECK(z >= S(ip.depth_min) * S(0.999));
+    CHECK(z <= S(ip.depth_max) * S(1.001));
+  }
+  CHECK_THROWS_AS(init_random(std::vector<Camera<S>>{}, ip), Error);
+}
+
 // The phase split of an iteration's time: non-negative, within the iteration's
 // wall time, the render's own breakdown filled in, the field only when deforming.
 static void check_phases(const TrainProgress& p) {

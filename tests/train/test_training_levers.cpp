@@ -34,10 +34,9 @@ TrainParams still_check_params() {
 }
 
 GaussianScene<float> lever_init(const std::vector<TrainFrame<float>>& frames) {
-  const auto cams = frame_cameras(frames);
   InitParams ip;
   ip.random_points = 1500;
-  return init_random(cams, camera_extent(cams), ip);
+  return init_random(frame_cameras(frames), ip);
 }
 
 }  // namespace

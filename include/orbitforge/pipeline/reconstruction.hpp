@@ -159,11 +159,8 @@ GaussianScene<Scalar> initial_scene(const PipelineRun<Scalar>& run, const std::v
   ip.seed = run.params.seed;
   const SourcePoints<Scalar> sp = source_points(in);
   if (sp.kept >= 4) return init_from_points(sp.points, sp.colors, ip);
-  const auto cams = frame_cameras(frames);
-  Scalar extent = cams.size() > 1 ? camera_extent(cams) : Scalar(1);
-  if (!(extent > Scalar(0))) extent = Scalar(1);
   ip.random_points = run.params.init_points;
-  return init_random(cams, extent, ip);
+  return init_random(frame_cameras(frames), ip);
 }
 
 // Renders `scene` at the rendered canonical views into run.out/folder/NNNN.png

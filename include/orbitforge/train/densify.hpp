@@ -33,6 +33,7 @@
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/splat/gaussians.hpp"
+#include "orbitforge/train/camera_extent.hpp"
 
 namespace orbitforge {
 
@@ -132,27 +133,6 @@ inline DensifySchedule schedule_floors_for_frames(DensifySchedule s, std::size_t
   s.densify_interval = std::max(s.densify_interval, draws(interval_passes));
   s.opacity_reset_interval = std::max(s.opacity_reset_interval, draws(reset_passes));
   return s;
-}
-
-// The mean of the cameras' centres.
-template <class Scalar>
-typename Camera<Scalar>::Vec3 mean_camera_center(const std::vector<Camera<Scalar>>& cameras) {
-  ensure(!cameras.empty(), "mean_camera_center: no cameras");
-  typename Camera<Scalar>::Vec3 mean = Camera<Scalar>::Vec3::Zero();
-  for (const auto& c : cameras) mean += c.center();
-  return mean / Scalar(cameras.size());
-}
-
-// Scene extent as 3DGS defines it (getNerfppNorm): 1.1 times the largest distance of a
-// camera centre from the mean camera centre.
-template <class Scalar>
-Scalar camera_extent(const std::vector<Camera<Scalar>>& cameras) {
-  ensure(!cameras.empty(), "camera_extent: no cameras");
-  const typename Camera<Scalar>::Vec3 mean = mean_camera_center(cameras);
-  Scalar r = 0;
-  for (const auto& c : cameras) r = std::max(r, (c.center() - mean).norm());
-  ensure(std::isfinite(double(r)), "camera_extent: non-finite camera centre");
-  return Scalar(1.1) * r;
 }
 
 // Per-Gaussian statistics gathered between densification steps.

@@ -17,6 +17,7 @@
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/splat/gaussians.hpp"
+#include "orbitforge/train/camera_extent.hpp"
 
 namespace orbitforge {
 
@@ -165,6 +166,14 @@ GaussianScene<Scalar> init_random(const std::vector<Camera<Scalar>>& cameras, Sc
     }
   }
   return init_from_points(pts, cols, p);
+}
+
+// init_random at the cameras' own scale: the distance for bunched cameras is
+// their extent (camera_extent_or_one), the scene scale the trainer uses.
+template <class Scalar>
+GaussianScene<Scalar> init_random(const std::vector<Camera<Scalar>>& cameras, const InitParams& p = {}) {
+  ensure(!cameras.empty(), "init_random: no cameras");
+  return init_random(cameras, camera_extent_or_one(cameras), p);
 }
 
 }  // namespace orbitforge

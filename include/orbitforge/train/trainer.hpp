@@ -78,8 +78,7 @@ class Trainer {
     std::vector<Camera<Scalar>> cams;
     std::vector<int> repeats;
     for (const auto& f : frames_) cams.push_back(f.camera), repeats.push_back(f.repeats);
-    s_.extent = frames_.size() > 1 ? camera_extent(cams) : Scalar(0);
-    if (!(s_.extent > Scalar(1e-6))) s_.extent = Scalar(1);  // one camera (or all at one place): unit scale
+    s_.extent = camera_extent_or_one(cams);
     RenderParams<Scalar> rp;
     rp.threads = params.threads;
     rp.near_plane = params.near_plane_fraction * double(s_.extent);
