@@ -122,7 +122,7 @@ struct DeformationFieldParams {
   static DeformationFieldParams fast() { return DeformationFieldParams{}; }
 };
 
-// The camera extent (train/densify.hpp camera_extent) a normalised scene has.
+// The camera extent (train/camera_extent.hpp) a normalised scene has.
 inline constexpr double kFieldReferenceExtent = 4.0;
 
 template <class Scalar>
