@@ -3,7 +3,8 @@
 // a focal length 4 % off and the frames of its unseen side, COLMAP closes the
 // loop, the focal length (refitted) comes back near the all-frame model's, and
 // the new cameras land on the first ones' gauge; with the lens held it stays
-// where it was and the far side still lands. And the refusals: each test names
+// where it was and the far side still lands, also at a working size whose
+// pixels are not square (896x512 from 512x512 frames). And the refusals: each test names
 // itself, on constructed figures and on that COLMAP model with its limits
 // tightened, and frames COLMAP cannot register are refused end to end.
 #include <catch2/catch.hpp>
@@ -60,6 +61,17 @@ TEST_CASE("recalibration: the refusal names the first test that fails", "[pipeli
   CHECK(recalibration_refusal(r, p) == "COLMAP registered 32 of 33 source frames");
 }
 
+TEST_CASE("recalibration: COLMAP's frames have square pixels", "[pipeline][recalibrate]") {
+  Intrinsics<double> lens{445.76, 445.76, 256, 256, 512, 512};
+  CHECK(square_pixel_width(lens) == 512);
+  lens = lens.resized(896, 512);  // 512x512 frames stretched: fx = 1.75 fy
+  CHECK(square_pixel_width(lens) == 512);
+  lens = Intrinsics<double>{300, 400, 50, 60, 100, 120};  // pixels taller than wide: widened
+  CHECK(square_pixel_width(lens) == 133);
+  CHECK(lens.resized(square_pixel_width(lens), 120).fx == Approx(399).epsilon(1e-12));
+  CHECK_THROWS_WITH(square_pixel_width(Intrinsics<double>{0, 1, 0, 0, 8, 8}), Catch::Contains("not a pinhole lens"));
+}
+
 // corgi_bread's source frames 1-33 at the all-frame model's poses with its
 // focal length times `first_factor` (the first cameras), and frames 34, 36,
 // ..., 90 without cameras as the completion, in frame order (the order along
@@ -71,8 +83,10 @@ struct FarSideCase {
   std::vector<int> far_side;
   double reference_focal = 0;
 
-  explicit FarSideCase(double first_factor)
-      : in(load_colmap_input<double>(orbitforge_test::shared_path(kVideo), "1-33", 512, 512)) {
+  // At a working size of width x height (the frames are 512x512: 896x512
+  // stretches them, as the paper's canonical views are).
+  explicit FarSideCase(double first_factor, int width = 512, int height = 512)
+      : in(load_colmap_input<double>(orbitforge_test::shared_path(kVideo), "1-33", width, height)) {
     reference_focal = in.cameras[0].camera.intrinsics.fx;
     for (int f : in.source) {
       first.push_back(in.cameras[std::size_t(f)].camera);
@@ -184,6 +198,30 @@ TEST_CASE("recalibration: with the lens held, the focal length stays and the far
   CHECK(turn < 2.0);  // the refusal's limit for the source cameras; 1.4 in two runs
   WARN("corgi_bread, lens held at " << r.focal_px << " px: far side centre error " << centre
                                     << " of the arc's chord, turn " << turn << " deg on average");
+}
+
+TEST_CASE("recalibration: at a working size of another aspect than the frames', the lens keeps its pixel aspect",
+          "[pipeline][recalibrate][data]") {
+  if (!have_video_and_colmap()) return;
+  const FarSideCase c(1.0, 896, 512);
+  const Intrinsics<double>& first = c.first[0].intrinsics;
+  REQUIRE(first.fx / first.fy == Approx(896.0 / 512.0));
+  CHECK(square_pixel_width(first) == 512);
+  const Recalibration<double> r = c.recalibrate(RecalibrateParams{});
+  CHECK(r.focal_px == Approx(first.fx).epsilon(1e-6));
+  for (const auto& [name, cam] : r.cameras) {
+    INFO(name);
+    CHECK(cam.intrinsics.width == 896);
+    CHECK(cam.intrinsics.height == 512);
+    CHECK(cam.intrinsics.fx == Approx(first.fx).epsilon(1e-6));
+    CHECK(cam.intrinsics.fy == Approx(first.fy).epsilon(1e-6));
+    CHECK(cam.intrinsics.cx == Approx(first.cx).epsilon(1e-6));
+    CHECK(cam.intrinsics.cy == Approx(first.cy).epsilon(1e-6));
+  }
+  CHECK(r.alignment.rotation_mean_deg < 1.0);
+  const auto [centre, turn] = c.far_side_error(r);
+  CHECK(centre < 0.03);
+  CHECK(turn < 2.0);
 }
 
 TEST_CASE("recalibration: completion frames COLMAP cannot register are refused and nothing is applied",

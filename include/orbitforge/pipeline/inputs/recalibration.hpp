@@ -17,7 +17,8 @@
 // `why_not` says which test failed (recalibration_refusal) and the caller
 // keeps the first cameras.
 //
-// recalibrate_cameras(dir, ...) writes dir/images/ (the frames as PNG),
+// recalibrate_cameras(dir, ...) writes dir/images/ (the frames as PNG, with
+// square pixels: square_pixel_width),
 // dir/matches.txt (pipeline/inputs/descriptor_matching.hpp), dir/database.db, dir/sparse/ (or dir/fixed/ with the focal
 // held) and dir/logs/; it starts by clearing dir.
 #include <algorithm>
@@ -128,6 +129,16 @@ std::string recalibration_refusal(const Recalibration<Scalar>& r, const Recalibr
   return {};
 }
 
+// The width at which a frame of `lens`'s grid has square pixels (fx = fy),
+// resampled along x; the grid's own width where they are square already.
+template <class Scalar>
+int square_pixel_width(const Intrinsics<Scalar>& lens) {
+  ensure(lens.width > 0 && lens.height > 0 && lens.fx > 0 && lens.fy > 0, "recalibrate: the first cameras' lens (",
+         lens.width, "x", lens.height, ", fx ", lens.fx, ", fy ", lens.fy, ") is not a pinhole lens");
+  if (lens.fx == lens.fy) return lens.width;
+  return std::max(1, int(std::lround(double(lens.width) * double(lens.fy) / double(lens.fx))));
+}
+
 // `frames` in their order along the orbit (either direction), all of one size;
 // every source frame has its first camera, all with one lens. `threads`:
 // COLMAP's (0 = all).
@@ -153,6 +164,16 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
          " source frames; 3 are needed to align the new cameras");
   const Intrinsics<Scalar>& lens = first_source->intrinsics;
   r.focal_first_px = double(lens.fx);
+  // COLMAP's pinhole models have square pixels. A working size of another
+  // aspect than the frames were shot at (896x512 from 512x512 frames) has
+  // not: held at fx there, COLMAP's lens would take fy = fx and G1 would
+  // learn a squashed scene. So COLMAP sees every frame resampled along x to
+  // square pixels, and its cameras come back on the working grid.
+  const int colmap_width = square_pixel_width(lens);
+  const Intrinsics<Scalar> colmap_lens = lens.resized(colmap_width, lens.height);
+  for (const auto& f : frames)
+    ensure(f.image->width == lens.width && f.image->height == lens.height, "recalibrate: frame ", f.name, " is ",
+           f.image->width, "x", f.image->height, ", the first cameras' lens ", lens.width, "x", lens.height);
 
   std::error_code ec;
   fs::remove_all(dir, ec);
@@ -160,7 +181,10 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
   const fs::path database = fs::path(dir) / "database.db";
   fs::create_directories(images);
   fs::create_directories(logs);
-  for (const auto& f : frames) write_png((images / f.name).string(), *f.image);
+  const ResizeFilter filter = colmap_width < lens.width ? ResizeFilter::area : ResizeFilter::bilinear;
+  for (const auto& f : frames)
+    write_png((images / f.name).string(),
+              colmap_width == lens.width ? *f.image : resize_image(*f.image, colmap_width, lens.height, filter));
 
   CameraStageParams cp;
   cp.camera_model = p.camera_model;
@@ -186,7 +210,7 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
   std::string model;
   if (p.hold_focal) {
     const fs::path camera_only = fs::path(dir) / "given_focal", out = fs::path(dir) / "fixed";
-    write_colmap_camera_only(camera_only.string(), cp.camera_model, lens.width, lens.height, double(lens.fx));
+    write_colmap_camera_only(camera_only.string(), cp.camera_model, colmap_width, lens.height, double(colmap_lens.fx));
     fs::create_directories(out);
     timed(colmap_mapper_fixed_focal_command(database.string(), images.string(), camera_only.string(), out.string(), cp),
           "mapper.log");
@@ -205,9 +229,11 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
     for (const auto& fc : colmap_frame_cameras<Scalar>(read_colmap_model(model))) {
       const auto it = by_name.find(fc.name);
       if (!fc.valid || it == by_name.end()) continue;
-      registered[fc.name] = fc.camera;
+      Camera<Scalar> cam = fc.camera;
+      cam.intrinsics = cam.intrinsics.resized(lens.width, lens.height);
+      registered[fc.name] = cam;
       ++(it->second->source ? r.source_registered : r.completion_registered);
-      r.focal_px = double(fc.camera.intrinsics.fx);
+      r.focal_px = double(cam.intrinsics.fx);
     }
   r.why_not = registration_refusal(r, p);
   if (!r.why_not.empty()) return r;

@@ -74,6 +74,9 @@ void stage_recalibrate(PipelineRun<Scalar>& run) {
   const nlohmann::json settings = {{"camera_model", rp.camera_model},
                                    {"hold_focal", rp.hold_focal},
                                    {"matcher", "neighbours along the orbit"},
+                                   // COLMAP sees square pixels (recalibrate_cameras); keyed, so
+                                   // that cameras estimated on the working grid's pixels are redone
+                                   {"pixels", "square"},
                                    {"neighbours", rp.neighbours},
                                    {"init_min_tri_angle_deg", rp.init_min_tri_angle_deg},
                                    {"max_centre_residual", rp.max_centre_residual},
