@@ -130,12 +130,11 @@ std::string recalibration_refusal(const Recalibration<Scalar>& r, const Recalibr
 }
 
 // The width at which a frame of `lens`'s grid has square pixels (fx = fy),
-// resampled along x; the grid's own width where they are square already.
+// resampled along x (the grid's own width where they are square already).
 template <class Scalar>
 int square_pixel_width(const Intrinsics<Scalar>& lens) {
   ensure(lens.width > 0 && lens.height > 0 && lens.fx > 0 && lens.fy > 0, "recalibrate: the first cameras' lens (",
          lens.width, "x", lens.height, ", fx ", lens.fx, ", fy ", lens.fy, ") is not a pinhole lens");
-  if (lens.fx == lens.fy) return lens.width;
   return std::max(1, int(std::lround(double(lens.width) * double(lens.fy) / double(lens.fx))));
 }
 
@@ -182,9 +181,8 @@ Recalibration<Scalar> recalibrate_cameras(const std::string& dir, const std::vec
   fs::create_directories(images);
   fs::create_directories(logs);
   const ResizeFilter filter = colmap_width < lens.width ? ResizeFilter::area : ResizeFilter::bilinear;
-  for (const auto& f : frames)
-    write_png((images / f.name).string(),
-              colmap_width == lens.width ? *f.image : resize_image(*f.image, colmap_width, lens.height, filter));
+  for (const auto& f : frames)  // resize_image returns a frame of the same size as it is
+    write_png((images / f.name).string(), resize_image(*f.image, colmap_width, lens.height, filter));
 
   CameraStageParams cp;
   cp.camera_model = p.camera_model;
