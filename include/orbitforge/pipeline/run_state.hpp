@@ -22,6 +22,7 @@
 #include "orbitforge/pipeline/params.hpp"
 #include "orbitforge/pipeline/stage_record.hpp"
 #include "orbitforge/splat/renderer.hpp"
+#include "orbitforge/train/still_check.hpp"
 #include "orbitforge/train/trainer.hpp"
 
 namespace orbitforge {
@@ -105,6 +106,7 @@ nlohmann::json train_settings(const TrainParams& t, const PipelineParams& p) {
                           {"holdout_every", t.still_holdout_every},
                           {"gain_db", t.still_gain_db},
                           {"region_gain_db", t.still_region_gain_db},
+                          {"region_floor", kStillRegionFloor},
                           {"bake_samples", t.still_bake_samples}};
   }
   if (t.coarse_levels > 0) j["coarse"] = {{"levels", t.coarse_levels}, {"fraction", t.coarse_fraction}};

@@ -25,6 +25,7 @@ inline nlohmann::json still_check_json(const ShortcutState& sc, const TrainParam
           {"region", {sc.field_region / kStillRegions, sc.field_region % kStillRegions}},
           {"regions", {kStillRegions, kStillRegions}},
           {"region_rank", kStillRegionRank},
+          {"region_floor", kStillRegionFloor},
           {"thresholds_db", {{"gain", p.still_gain_db}, {"region_gain", p.still_region_gain_db}}},
           {"decision", sc.field_baked ? "baked" : "kept"}};
 }

@@ -15,9 +15,13 @@
 //                   exactly (a plain backdrop) cannot show a large ratio of two
 //                   tiny errors.
 // A part of the object that moves changes a few regions and is diluted in the
-// whole-image mean; the region figure keeps it. The rank and the floor were
-// chosen on three recorded videos with and without a moving part (rank 1, floor
-// 1e-4) and checked on two others (docs/benchmarks.md).
+// whole-image mean; the region figure keeps it. The rank was chosen on three
+// recorded videos with and without a moving part and checked on two others. The
+// floor is about the error a fit of generated frames has anyway at the check
+// (whole images 5e-4 to 2e-3): with cameras estimated from the frames, a region
+// of plain backdrop next to the object's outline, which both fit to 33 and 37
+// dB, gained 3.08 dB at a floor of 1e-4 and kept a still recording's field; at
+// 1e-3 it gains 0.97 (docs/benchmarks.md, "The region figure's floor").
 // The frames compared on are held back from training until the check
 // (TrainParams::still_holdout_every): fit to a frame, a field also absorbs the
 // generated frame's own changes, and on training frames a still video's best
@@ -81,7 +85,7 @@ inline int still_check_iteration(const TrainParams& p, int warmup) {
 
 inline constexpr int kStillRegions = 8;
 inline constexpr int kStillRegionRank = 1;
-inline constexpr double kStillRegionFloor = 1e-4;  // a mean squared error of 40 dB
+inline constexpr double kStillRegionFloor = 1e-3;  // a mean squared error of 30 dB
 
 // Squared errors of renders (clamped to [0, 1]) against frames, summed per region
 // of a kStillRegions x kStillRegions grid (row-major; regions of a frame smaller
