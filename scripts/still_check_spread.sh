@@ -10,6 +10,8 @@
 #
 # e.g. scripts/still_check_spread.sh out/still "cool_teddy doll" "0 1 2" --still-check 500 --coarse-levels 1
 # The data is ../shared/data/v3d (ORBITFORGE_DATA overrides); logs stay in OUT_ROOT.
+# CAMERAS=estimated runs the user's path (COLMAP on the source frames, the
+# recorded model for scoring only) instead of the recorded cameras.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out_root=${1:?usage: still_check_spread.sh OUT_ROOT "VIDEO ..." "SEED ..." [flags]}
@@ -18,6 +20,9 @@ seeds=${3:?usage: still_check_spread.sh OUT_ROOT "VIDEO ..." "SEED ..." [flags]}
 shift 3
 data=${ORBITFORGE_DATA:-../shared/data/v3d}
 program=build/examples/full_pipeline
+cameras=${CAMERAS:-recorded}
+[[ $cameras == recorded || $cameras == estimated ]] ||
+  { echo "still_check_spread: CAMERAS must be recorded or estimated, got $cameras" >&2; exit 1; }
 [[ -x $program ]] || { echo "still_check_spread: $program not built (cmake --build build)" >&2; exit 1; }
 mkdir -p "$out_root"
 header="| video |"
@@ -31,7 +36,8 @@ for v in $videos; do
   for s in $seeds; do
     log=$out_root/$v.seed$s.log
     rm -rf "${out_root:?}/$v.seed$s"
-    "$program" --colmap "$data/$v" --frames 1-33 --holdout-every 8 --completion oracle --no-comparisons \
+    if [[ $cameras == estimated ]]; then input=(--images "$data/$v/images" --reference "$data/$v"); else input=(--colmap "$data/$v"); fi
+    "$program" "${input[@]}" --frames 1-33 --holdout-every 8 --completion oracle --no-comparisons \
       --iters 10000 --iters-g1 10000 --width 896 --height 512 --threads 2 --seed "$s" "$@" \
       --out "$out_root/$v.seed$s" > "$log" 2>&1 &
     pid=$!
