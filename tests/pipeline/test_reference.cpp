@@ -123,6 +123,51 @@ TEST_CASE("reference_report: an under-rotated estimate shows as gap azimuth erro
   CHECK(arc_user < arc_ref - 5);
 }
 
+TEST_CASE("reference_report: a reference that stops short of its first frame shows a wide last step",
+          "[pipeline][reference]") {
+  // 90 frames all the way round: frame 90 is one 4-degree step before frame 1.
+  SyntheticInputParams sp = small_input();
+  sp.arc_deg = 360.0;
+  const PipelineInput<double> all = synthetic_pipeline_input<double>(sp, 1);
+  OrbitParams op;
+  op.views = 121;
+  op.width = op.height = 32;
+  std::vector<FrameCamera<double>> every(all.cameras.begin(), all.cameras.end());
+  const OrbitFit<double> truth = fit_orbit(every, op);
+  auto loop_of = [&](double turn_per_frame_scale) {
+    // The reference turns by `scale` of each true step about the orbit's axis
+    // from frame 1 on, as a model that under-rotates from frame to frame does.
+    PipelineInput<double> ref = all;
+    const double az0 = orbit_azimuth_deg<double>(all.cameras[0].camera.center(), truth.orbit.center,
+                                                 truth.orbit.e1, truth.orbit.e2);
+    for (auto& fc : ref.cameras) {
+      auto& c = fc.camera;
+      const double az = orbit_azimuth_deg<double>(c.center(), truth.orbit.center, truth.orbit.e1, truth.orbit.e2);
+      const double travelled = wrap_deg_360(double(truth.orbit.direction) * (az - az0));
+      const double turn = -double(truth.orbit.direction) * (1 - turn_per_frame_scale) * travelled * 3.14159265358979 / 180;
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(turn, truth.orbit.normal).toRotationMatrix();
+      const Eigen::Vector3d centre = truth.orbit.center + R * (c.center() - truth.orbit.center);
+      c = Camera<double>::from_world_T_camera(R * c.R.transpose(), centre, c.intrinsics);
+    }
+    PipelineInput<double> user = user_view(all, some_gauge());
+    attach_reference(user, ref, "all frames");
+    std::vector<FrameCamera<double>> src;
+    for (int f : user.source) src.push_back(user.cameras[std::size_t(f)]);
+    return reference_report(user, fit_orbit(src, op))["loop"];
+  };
+  const nlohmann::json closed = loop_of(1.0), short_of = loop_of(0.96);
+  INFO("closed: " << closed.dump() << "; under-rotated: " << short_of.dump());
+  REQUIRE(closed.is_object());
+  CHECK(closed["frames"].get<int>() == 90);
+  CHECK(closed["mean_step_deg"].get<double>() == Approx(4.0).margin(0.1));
+  CHECK(closed["last_to_first_deg"].get<double>() == Approx(4.0).margin(1.5));
+  // 4 % short a step: 89 steps of 3.84 degrees, and 18 degrees back to frame 1.
+  CHECK(short_of["mean_step_deg"].get<double>() == Approx(3.84).margin(0.1));
+  CHECK(short_of["last_to_first_deg"].get<double>() > 3 * short_of["mean_step_deg"].get<double>());
+  // No step between neighbours is that wide (the cameras' noise moves each by about 1 degree).
+  CHECK(short_of["largest_step_deg"].get<double>() < 2 * short_of["mean_step_deg"].get<double>());
+}
+
 TEST_CASE("attach_reference refuses a reference of another video or size", "[pipeline][reference]") {
   const PipelineInput<double> all = synthetic_pipeline_input<double>(small_input(), 1);
   PipelineInput<double> user = user_view(all, some_gauge());
