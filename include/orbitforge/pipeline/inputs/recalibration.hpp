@@ -61,9 +61,10 @@ struct RecalibrateParams {
   // The new model must be the same orbit as the first cameras, refined: after
   // the similarity their source centres agree to this fraction of their
   // spread and their orientations to this many degrees on average, and the
-  // focal length moves by at most this fraction. (sunflower's oracle lacks the
-  // last 54 degrees of the orbit; closing the loop across that hole turned its
-  // source cameras by 3.4 degrees and lengthened the focal length by 18 %.)
+  // focal length moves by at most this fraction. (On sunflower, whose first
+  // focal length is 11 % shorter than a closed-loop model of every frame,
+  // closing the loop turned its source cameras by 3.4 degrees and lengthened
+  // the focal length by 18 %.)
   double max_centre_residual = 0.05;
   double max_rotation_residual_deg = 2;
   double max_focal_change = 0.10;
