@@ -29,6 +29,7 @@
 #include "orbitforge/geometry/angles.hpp"
 #include "orbitforge/geometry/camera_alignment.hpp"
 #include "orbitforge/geometry/orbit.hpp"
+#include "orbitforge/geometry/orbit_loop.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 
 namespace orbitforge {
@@ -106,16 +107,11 @@ inline std::pair<double, double> line_fit(const std::vector<double>& x, const st
 
 }  // namespace reference_detail
 
-// How the reference's own cameras go round the video, in frame order, on an
-// orbit fitted to all of them: the mean turn per frame, the largest, and the
-// turn from the last frame back to the first. A video that orbits the whole
-// way ends one step before it began; a model that was never told so (a
-// sequential matcher never matches the last frames with the first) stops
-// short, its last step several mean steps wide and its far side turned from
-// where the frames were shot (docs/cameras.md, "A reference that closes the
-// loop"). Null with fewer than 4 cameras.
+// How the reference's own cameras go round the video (geometry/orbit_loop.hpp):
+// a reference of a whole-orbit video whose last step is several mean steps
+// wide was never told that its loop closes. Null with fewer than 4 cameras.
 template <class Scalar>
-nlohmann::json reference_loop_json(const PipelineInput<Scalar>& in, int views) {
+nlohmann::json reference_loop_json(const PipelineInput<Scalar>& in) {
   if (!in.reference) return nullptr;
   std::vector<FrameCamera<Scalar>> cams;
   std::vector<int> frame;
@@ -131,21 +127,11 @@ nlohmann::json reference_loop_json(const PipelineInput<Scalar>& in, int views) {
     frame.push_back(int(i));
   }
   if (cams.size() < 4) return nullptr;
-  OrbitParams op;
-  op.views = std::max(views, 4);
-  const OrbitGeometry<Scalar>& g = fit_orbit(cams, op).orbit;
-  std::vector<double> az;
-  for (const auto& c : cams) az.push_back(double(orbit_azimuth_deg<Scalar>(c.camera.center(), g.center, g.e1, g.e2)));
-  double total = 0;
-  for (std::size_t k = 1; k < az.size(); ++k) total += wrap_deg_180(az[k] - az[k - 1]);
-  const double sign = total < 0 ? -1.0 : 1.0;
-  double largest = 0;
-  for (std::size_t k = 1; k < az.size(); ++k)
-    largest = std::max(largest, sign * wrap_deg_180(az[k] - az[k - 1]) / double(frame[k] - frame[k - 1]));
-  return {{"frames", int(cams.size())},
-          {"mean_step_deg", sign * total / double(frame.back() - frame.front())},
-          {"largest_step_deg", largest},
-          {"last_to_first_deg", wrap_deg_360(sign * (az.front() - az.back()))}};
+  const OrbitLoop l = orbit_loop(cams, frame);
+  return {{"frames", l.cameras},
+          {"mean_step_deg", l.mean_step_deg},
+          {"largest_step_deg", l.largest_step_deg},
+          {"last_to_first_deg", l.last_to_first_deg}};
 }
 
 // What the reference says of the estimated cameras and the fitted orbit:
@@ -207,7 +193,7 @@ nlohmann::json reference_report(const PipelineInput<Scalar>& in, const OrbitFit<
           {"source_arc_deg", {{"user", double(fit.diagnostics.source_span_deg)}, {"reference", ref_arc}}},
           {"focal_px", {{"user", median(user_focal)}, {"reference", median(ref_focal)}}},
           {"orbit_speed_deg_per_frame", speed},
-          {"loop", reference_loop_json(in, fit.views)},
+          {"loop", reference_loop_json(in)},
           {"gap_azimuth_error_deg", {{"frames", n}, {"mean_abs", n ? sum_abs / n : 0.0}, {"max_abs", max_abs}}}};
 }
 
