@@ -15,16 +15,20 @@ namespace orbitforge {
 
 
 namespace detail {
-// Prefetches the cache lines of [p, p + bytes) (a hint). GCC's pure-const
-// analysis sees no side effect in __builtin_prefetch, marks a function holding
-// only prefetches const and deletes its calls; the volatile asm keeps them.
+// Prefetches the cache lines of [p, p + bytes) into L2 (a hint). A batch of
+// Gaussians spans about 60 lines, more misses than L1 tracks at once: prefetches
+// into L1 (prefetcht0) were no faster than none, into L2 the projection of a
+// 100k-Gaussian degree-3 scene out of cache ran 14-19 % faster (bench_project).
+// GCC's pure-const analysis sees no side effect in __builtin_prefetch, marks a
+// function holding only prefetches const and deletes its calls; the volatile
+// asm keeps them.
 inline void prefetch_bytes(const void* p, std::size_t bytes) {
   const char* c = static_cast<const char*>(p);
   for (std::size_t o = 0; o < bytes; o += 64) {
 #if (defined(__GNUC__) || defined(__clang__)) && (defined(__x86_64__) || defined(__i386__))
-    asm volatile("prefetcht0 %0" : : "m"(c[o]));
+    asm volatile("prefetcht1 %0" : : "m"(c[o]));
 #elif defined(__GNUC__) || defined(__clang__)
-    __builtin_prefetch(c + o);
+    __builtin_prefetch(c + o, 0, 2);
     asm volatile("" : : : "memory");
 #else
     (void)c;
