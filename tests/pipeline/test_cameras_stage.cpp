@@ -19,6 +19,7 @@
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
 #include "orbitforge/pipeline/stages/cameras.hpp"
 #include "support/data.hpp"
+#include "support/programs.hpp"
 #include "support/temp_dir.hpp"
 #include "orbitforge/pipeline/inputs/colmap_input.hpp"
 
@@ -62,17 +63,6 @@ std::string after(const std::vector<std::string>& argv, const std::string& flag)
 }
 
 std::string text_of(const fs::path& p) { return read_file_bytes(p.string()); }
-
-// True when every program is on PATH; otherwise fails under CI=true and skips elsewhere.
-bool have_programs(const std::vector<std::string>& programs) {
-  for (const auto& p : programs)
-    if (find_program(p).empty()) {
-      if (orbitforge_test::running_in_ci()) FAIL("program " << p << " missing in CI (scripts/setup.sh installs it)");
-      WARN("SKIPPED: the " << p << " program is not on PATH (Debian package " << p << ")");
-      return false;
-    }
-  return true;
-}
 
 
 TEST_CASE("cameras stage: ffmpeg and colmap commands are argument vectors", "[pipeline][cameras]") {
@@ -275,7 +265,7 @@ TEST_CASE("cameras stage: a short video through ffmpeg and COLMAP, source frames
           "[pipeline][cameras][data]") {
   const std::string video_name = "v3d/cool_teddy/images";
   if (!orbitforge_test::have_shared_data(video_name)) return;
-  if (!have_programs({"ffmpeg", "colmap"})) return;
+  if (!orbitforge_test::have_programs({"ffmpeg", "colmap"})) return;
   const auto t0 = std::chrono::steady_clock::now();
   TempDir t;
   // A 12-frame clip at 256 x 256 from recorded frames 1-12, as a user's mp4.
@@ -375,7 +365,7 @@ TEST_CASE("cameras stage: sunflower's source frames alone give the all-frame mod
           "[pipeline][cameras][data]") {
   const std::string video = "v3d/sunflower";
   if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
-  if (!have_programs({"colmap"})) return;
+  if (!orbitforge_test::have_programs({"colmap"})) return;
   TempDir t;
   CameraStageParams p;
   p.images = orbitforge_test::shared_path(video + "/images");

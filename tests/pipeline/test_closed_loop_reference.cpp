@@ -15,6 +15,7 @@
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "support/data.hpp"
+#include "support/programs.hpp"
 #include "support/temp_dir.hpp"
 
 using namespace orbitforge;
@@ -34,12 +35,7 @@ TEST_CASE("closed_loop_reference.sh: a whole orbit's model closes with one even 
           "[pipeline][reference][data]") {
   const std::string video = "v3d/robot";
   if (!orbitforge_test::have_shared_data(video + "/sparse/0")) return;
-  for (const char* p : {"bash", "colmap"})
-    if (find_program(p).empty()) {
-      if (orbitforge_test::running_in_ci()) FAIL("program " << p << " missing in CI (scripts/setup.sh installs it)");
-      WARN("SKIPPED: the " << p << " program is not on PATH");
-      return;
-    }
+  if (!orbitforge_test::have_programs({"bash", "colmap"})) return;
   orbitforge_test::TempDir t("closed_loop");
   const std::string out = (t.path() / "robot").string();
   run_tool({"closed_loop_reference.sh",

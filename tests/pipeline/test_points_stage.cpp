@@ -15,6 +15,7 @@
 #include "orbitforge/pipeline/inputs/image_order.hpp"
 #include "orbitforge/pipeline/stages/points.hpp"
 #include "support/data.hpp"
+#include "support/programs.hpp"
 #include "support/temp_dir.hpp"
 
 using namespace orbitforge;
@@ -29,11 +30,7 @@ struct TempDir : orbitforge_test::TempDir {
 TEST_CASE("points stage: the temple's triangulated points lie on the temple and come from training frames only",
           "[pipeline][points]") {
   if (!orbitforge_test::have_shared_data("middlebury/templeSparseRing")) return;
-  if (find_program("colmap").empty()) {
-    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
-    WARN("SKIPPED: the colmap program is not on PATH (Debian package colmap)");
-    return;
-  }
+  if (!orbitforge_test::have_programs({"colmap"})) return;
   using S = float;
   const std::string dir = orbitforge_test::shared_path("middlebury/templeSparseRing");
   PipelineInput<S> in = load_colmap_input<S>(dir, "1-8", WorkingSize::from_pair(512, 384), /*normalise=*/true,
@@ -124,11 +121,7 @@ TEST_CASE("points stage: the temple's triangulated points lie on the temple and 
 
 TEST_CASE("points stage: frames with nothing in common give no points and leave the input as it was",
           "[pipeline][points]") {
-  if (find_program("colmap").empty()) {
-    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
-    WARN("SKIPPED: the colmap program is not on PATH (Debian package colmap)");
-    return;
-  }
+  if (!orbitforge_test::have_programs({"colmap"})) return;
   // Two blank frames: no features, nothing to match or triangulate.
   PipelineInput<float> in;
   for (int i = 0; i < 2; ++i) {

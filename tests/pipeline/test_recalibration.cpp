@@ -19,6 +19,7 @@
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "orbitforge/pipeline/inputs/recalibration.hpp"
 #include "support/data.hpp"
+#include "support/programs.hpp"
 #include "support/temp_dir.hpp"
 
 using namespace orbitforge;
@@ -31,12 +32,7 @@ const std::string kVideo = "v3d/corgi_bread";
 // (have_shared_data and this say which).
 bool have_video_and_colmap() {
   if (!orbitforge_test::have_shared_data(kVideo + "/sparse/0")) return false;
-  if (find_program("colmap").empty()) {
-    if (orbitforge_test::running_in_ci()) FAIL("colmap missing in CI (scripts/setup.sh installs it)");
-    WARN("colmap is not installed (Debian package colmap): test skipped");
-    return false;
-  }
-  return true;
+  return orbitforge_test::have_programs({"colmap"});
 }
 
 TEST_CASE("recalibration: the refusal names the first test that fails", "[pipeline][recalibrate]") {
