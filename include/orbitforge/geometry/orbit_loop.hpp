@@ -34,19 +34,18 @@ OrbitLoop orbit_loop(const std::vector<FrameCamera<Scalar>>& cams, const std::ve
   for (std::size_t k = 1; k < frame.size(); ++k)
     ensure(frame[k] > frame[k - 1], "orbit_loop: frame numbers must increase (", frame[k - 1], ", then ", frame[k], ")");
   OrbitParams op;
-  op.views = std::max(int(cams.size()), 4);
+  op.views = int(cams.size());
   const OrbitGeometry<Scalar>& g = fit_orbit(cams, op).orbit;
-  std::vector<double> az;
+  std::vector<double> az, turn;  // azimuth per camera; signed turn from the camera before
   for (const auto& c : cams) az.push_back(double(orbit_azimuth_deg<Scalar>(c.camera.center(), g.center, g.e1, g.e2)));
   double total = 0;
-  for (std::size_t k = 1; k < az.size(); ++k) total += double(wrap_deg_180(az[k] - az[k - 1]));
-  const double sign = total < 0 ? -1.0 : 1.0;
+  for (std::size_t k = 1; k < az.size(); ++k) total += turn.emplace_back(double(wrap_deg_180(az[k] - az[k - 1])));
+  const double sign = total < 0 ? -1.0 : 1.0;  // the direction of travel
   OrbitLoop l;
   l.cameras = int(cams.size());
   l.mean_step_deg = sign * total / double(frame.back() - frame.front());
   for (std::size_t k = 1; k < az.size(); ++k)
-    l.largest_step_deg = std::max(l.largest_step_deg,
-                                  sign * double(wrap_deg_180(az[k] - az[k - 1])) / double(frame[k] - frame[k - 1]));
+    l.largest_step_deg = std::max(l.largest_step_deg, sign * turn[k - 1] / double(frame[k] - frame[k - 1]));
   l.last_to_first_deg = double(wrap_deg_360(sign * (az.front() - az.back())));
   return l;
 }
