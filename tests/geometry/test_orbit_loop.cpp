@@ -31,6 +31,7 @@ TEMPLATE_TEST_CASE("orbit_loop: 90 cameras all the way round close in one step; 
     CHECK(closed.mean_step_deg == Approx(4.0).margin(0.01));
     CHECK(closed.last_to_first_deg == Approx(4.0).margin(0.2));
     CHECK(closed.largest_step_deg < 4.2);
+    CHECK(closed.smallest_step_deg > 3.8);
 
     o.step_deg = direction * 3.84;
     const OrbitLoop short_of = orbit_loop(o.cameras(), frames_of(90));
@@ -52,6 +53,7 @@ TEST_CASE("orbit_loop: missing frames count in the steps; bad input is named", "
   CHECK(l.cameras == 85);
   CHECK(l.mean_step_deg == Approx(4.0).margin(0.01));
   CHECK(l.largest_step_deg == Approx(4.0).margin(0.01));
+  CHECK(l.smallest_step_deg == Approx(4.0).margin(0.01));
   CHECK(l.last_to_first_deg == Approx(4.0).margin(0.01));
 
   CHECK_THROWS_WITH(orbit_loop(std::vector<FrameCamera<double>>(cams.begin(), cams.begin() + 3), {0, 1, 2}),

@@ -51,6 +51,7 @@ TEST_CASE("closed_loop_reference.sh: a whole orbit's model closes with one even 
   // 89 steps and the closing one share the turn evenly, within a few per cent.
   CHECK(std::abs(closed.mean_step_deg / even - 1) < 0.03);
   CHECK(std::abs(closed.last_to_first_deg / even - 1) < 0.25);
+  CHECK(closed.smallest_step_deg > 0.8 * even);
   CHECK(closed.largest_step_deg < 1.2 * even);
   // The sequential model turns less per frame and leaves a last step several
   // frames wide: its orbit does not close.

@@ -22,7 +22,8 @@ namespace orbitforge {
 struct OrbitLoop {
   int cameras = 0;
   double mean_step_deg = 0;      // per frame, over the first to the last camera
-  double largest_step_deg = 0;   // per frame, between neighbouring cameras
+  double smallest_step_deg = 0;  // per frame, between neighbouring cameras
+  double largest_step_deg = 0;
   double last_to_first_deg = 0;  // from the last camera on round to the first, in the direction of travel
 };
 
@@ -44,8 +45,11 @@ OrbitLoop orbit_loop(const std::vector<FrameCamera<Scalar>>& cams, const std::ve
   OrbitLoop l;
   l.cameras = int(cams.size());
   l.mean_step_deg = sign * total / double(frame.back() - frame.front());
-  for (std::size_t k = 1; k < az.size(); ++k)
-    l.largest_step_deg = std::max(l.largest_step_deg, sign * turn[k - 1] / double(frame[k] - frame[k - 1]));
+  for (std::size_t k = 1; k < az.size(); ++k) {
+    const double step = sign * turn[k - 1] / double(frame[k] - frame[k - 1]);
+    l.smallest_step_deg = k == 1 ? step : std::min(l.smallest_step_deg, step);
+    l.largest_step_deg = std::max(l.largest_step_deg, step);
+  }
   l.last_to_first_deg = double(wrap_deg_360(sign * (az.front() - az.back())));
   return l;
 }
