@@ -24,6 +24,10 @@
 // or L1, the speed one core sustains without tiles, lists or early stops.
 // BM_PerGaussianMemory: the memory traffic of the per-Gaussian stages without
 // their arithmetic (the floor under gauss_ns_g; see the function).
+// BM_EmptyFrame: the forward pass of a frame with one Gaussian in one tile, so
+// nearly every tile only writes its outputs (colour, transmittance, depth, count,
+// replay); empty_ns_px is the whole pass per pixel. A trained scene's backdrop
+// is such tiles, and threads write neighbouring ones.
 // BM_RasterKernelsScene: the same kernels on a scene of your own, e.g. one that
 // full_pipeline trained, at every K-th camera of a camera or orbit file; it is
 // registered only when the environment names them:
@@ -440,6 +444,29 @@ void BM_PerGaussianMemory(benchmark::State& state) {
   state.counters["floor_ns_g"] = (scene_ms + soa_ms + gather_ms) * per_g;
 }
 
+// Args: width, height, threads.
+void BM_EmptyFrame(benchmark::State& state) {
+  const int w = int(state.range(0)), h = int(state.range(1));
+  GaussianScene<float> s;
+  s.resize(1, 0);
+  s.log_scales.assign(3, std::log(0.01f));
+  s.opacity_logits = {2.f};
+  s.sh = {1.5f, 0.f, 0.f};
+  RenderParams<float> p;
+  p.threads = int(state.range(2));
+  Renderer<float> r(p);
+  const Intrinsics<float> k{440.f, 440.f, 0.5f * float(w), 0.5f * float(h), w, h};
+  const auto cam = Camera<float>::look_at({0.f, -3.f, 0.f}, {0.f, 0.f, 0.f}, {0.f, 0.f, 1.f}, k);
+  r.render(SceneView<float>(s), cam);  // first frame allocates
+  double total_ms = 0;
+  for (auto _ : state) {
+    const auto& out = r.render(SceneView<float>(s), cam);
+    benchmark::DoNotOptimize(out.color.data.data());
+    total_ms += out.frame.total_ms;
+  }
+  state.counters["empty_ns_px"] = total_ms * 1e6 / (double(state.iterations()) * double(w) * double(h));
+}
+
 void sizes(benchmark::internal::Benchmark* b, bool with_extents) {
   for (auto wh : {std::pair<int, int>{256, 256}, {512, 512}, {896, 512}})
     for (int n : {10000, 100000, 300000})
@@ -472,6 +499,13 @@ BENCHMARK(BM_RasterKernels)
     ->Args({512, 512, 100000})
     ->Args({896, 512, 300000})
     ->Unit(benchmark::kMillisecond)
+    ->MinTime(0.3);
+BENCHMARK(BM_EmptyFrame)
+    ->ArgNames({"w", "h", "threads"})
+    ->Args({896, 512, 1})
+    ->Args({896, 512, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
     ->MinTime(0.3);
 BENCHMARK(BM_ExpBlendLoop)->ArgName("exp2")->Arg(0)->Arg(1)->MinTime(0.3);
 BENCHMARK(BM_Backward)

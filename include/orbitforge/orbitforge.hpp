@@ -1,6 +1,7 @@
 #pragma once
 // Umbrella header: the whole library. Including single headers is cheaper to
 // compile; this one is for convenience.
+#include "orbitforge/core/aligned_allocator.hpp"
 #include "orbitforge/core/camera.hpp"
 #include "orbitforge/core/config.hpp"
 #include "orbitforge/core/constants.hpp"

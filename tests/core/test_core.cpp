@@ -84,6 +84,19 @@ TEST_CASE("image indexing is row-major, channels fastest", "[core][image]") {
   REQUIRE_THROWS_AS(Image<float>(-1, 2, 3), Error);
 }
 
+TEMPLATE_TEST_CASE("image planes start on a cache line, so threads writing neighbouring tiles share no line",
+                   "[core][image]", float, double, std::int32_t) {
+  // Sizes glibc serves from the heap and from mmap (whose blocks start 16 bytes past a line).
+  for (int side : {3, 17, 512, 1024}) {
+    Image<TestType> im(side, side, 3);
+    REQUIRE(reinterpret_cast<std::uintptr_t>(im.data.data()) % kCacheLineBytes == 0);
+    Image<TestType> copy = im;
+    REQUIRE(reinterpret_cast<std::uintptr_t>(copy.data.data()) % kCacheLineBytes == 0);
+    im.data.resize(im.data.size() + 1);
+    REQUIRE(reinterpret_cast<std::uintptr_t>(im.data.data()) % kCacheLineBytes == 0);
+  }
+}
+
 TEMPLATE_TEST_CASE("simd::hadd_rows gives each row's lane sum, in row order", "[core][simd]", float, double) {
   using B = simd::native_batch<TestType>;
   constexpr std::size_t N = B::size;

@@ -166,8 +166,8 @@ GaussianScene<T> cast_scene(const GaussianScene<S>& s) {
 }
 
 // Largest |a - b| over the largest |b|: a relative error of a whole group.
-template <class A, class B>
-double group_error(const std::vector<A>& a, const std::vector<B>& b) {
+template <class A, class AA, class B, class BA>
+double group_error(const std::vector<A, AA>& a, const std::vector<B, BA>& b) {
   REQUIRE(a.size() == b.size());
   double worst = 0, largest = 0;
   for (std::size_t i = 0; i < a.size(); ++i) {

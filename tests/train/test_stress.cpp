@@ -137,8 +137,8 @@ double train_psnr(const Seen<S>& v, const std::vector<Image<S>>& targets, int it
   return p;
 }
 
-template <class S>
-bool all_finite(const std::vector<S>& v) {
+template <class S, class A>
+bool all_finite(const std::vector<S, A>& v) {
   for (S x : v)
     if (!std::isfinite(x)) return false;
   return true;

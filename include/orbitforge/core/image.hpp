@@ -1,10 +1,12 @@
 #pragma once
 // A plain interleaved image (row-major, channels fastest): pixel (x, y), channel c
-// lives at data[(y * width + x) * channels + c]. Row 0 is the top row.
+// lives at data[(y * width + x) * channels + c]. Row 0 is the top row. data starts
+// on a cache line (core/aligned_allocator.hpp): threads write neighbouring tiles.
 #include <cstddef>
 #include <cstdint>
 #include <vector>
 
+#include "orbitforge/core/aligned_allocator.hpp"
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/limits.hpp"
 
@@ -13,7 +15,7 @@ namespace orbitforge {
 template <class T>
 struct Image {
   int width = 0, height = 0, channels = 0;
-  std::vector<T> data;
+  cache_aligned_vector<T> data;
 
   Image() = default;
   Image(int w, int h, int c, T fill = T(0)) : width(w), height(h), channels(c) {

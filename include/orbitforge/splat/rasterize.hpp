@@ -59,7 +59,7 @@ struct RasterOutput {
   Image<Scalar> transmittance;        // [H][W][1] final T; alpha = 1 - T
   Image<Scalar> depth;                // [H][W][1] sum_i w_i z_i (divide by alpha to normalise)
   Image<std::int32_t> count;          // [H][W][1] Gaussians blended
-  std::vector<std::int32_t> replay;   // [H*W] tile-list entries the backward replays
+  cache_aligned_vector<std::int32_t> replay;  // [H*W] tile-list entries the backward replays
   RasterStats stats;
 };
 
