@@ -368,6 +368,27 @@ TEST_CASE("backward: scalar kernel, SIMD kernel and thread counts agree", "[rend
     }
 }
 
+TEST_CASE("backward without the background gradient: the same splat gradients, a zero background's", "[render][grad]") {
+  // Few splats on a frame with empty tiles: both tile paths skip the sums.
+  auto s = random_splats<double>(40, 70, 52, 404);
+  const LossWeights lw = random_weights(70, 52, 11, true, true);
+  RasterParams<double> p;
+  p.background = {{0.3, 0.6, 0.9}};
+  for (int threads : {1, 2}) {
+    p.threads = threads;
+    p.background_gradient = true;
+    const auto with = analytic(s, 70, 52, 16, p, lw, true, true);
+    p.background_gradient = false;
+    const auto without = analytic(s, 70, 52, 16, p, lw, true, true);
+    for (int c = 0; c < 3; ++c) {
+      CHECK(with.v_background[std::size_t(c)] != 0);
+      CHECK(without.v_background[std::size_t(c)] == 0);
+    }
+    for (int f = 0; f < 10; ++f)
+      for (std::size_t i = 0; i < s.size(); ++i) CHECK((*grad_field(with.splats, f))[i] == (*grad_field(without.splats, f))[i]);
+  }
+}
+
 TEST_CASE("backward in float agrees with double", "[render][grad]") {
   RandomSplatOptions o;
   o.opacity_max = 0.9;

@@ -37,6 +37,10 @@ template <class Scalar>
 struct RasterParams {
   std::array<Scalar, 3> background{{0, 0, 0}};
   int threads = 0;  // 0 = default (all hardware threads)
+  // The backward computes dL/d(background) (RasterGradOutput::v_background);
+  // false leaves it zero and skips its per-pixel sums, which are serial (pixel
+  // order) and, on a frame of mostly empty tiles, most of what those tiles cost.
+  bool background_gradient = true;
 };
 
 // The blending thresholds, in one place for the forward, backward and reference.

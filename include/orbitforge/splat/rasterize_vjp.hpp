@@ -43,7 +43,7 @@ namespace orbitforge {
 template <class Scalar>
 struct RasterGradOutput {
   ProjectedSplatsGrad<Scalar> splats;       // [N] per input Gaussian (zero for culled)
-  std::array<Scalar, 3> v_background{{0, 0, 0}};
+  std::array<Scalar, 3> v_background{{0, 0, 0}};  // zero unless RasterParams::background_gradient
   double ms = 0;
 };
 
@@ -102,13 +102,16 @@ void rasterize_vjp_tile(int t, const BinWorkspace<Scalar>& bins, const TileLanes
   // v_background (3 values): this tile's share of dL/d(background) = sum over
   // its pixels of v_colour T_final, in pixel order.
   Scalar share[3] = {0, 0, 0};
+  const bool background = params.background_gradient;
   auto add_background = [&](std::size_t pi, Scalar T) {
-    for (std::size_t c = 0; c < 3; ++c) share[c] += v_color.data[3 * pi + c] * T;
+    if (background)
+      for (std::size_t c = 0; c < 3; ++c) share[c] += v_color.data[3 * pi + c] * T;
   };
   if (n == 0) {  // no Gaussian here: only the background's share
-    tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
-      for (std::size_t pi = first; pi <= last; ++pi) add_background(pi, fwd.transmittance.data[pi]);
-    });
+    if (background)
+      tile_row_spans(g, tx0, ty0, [&](std::size_t first, std::size_t last) {
+        for (std::size_t pi = first; pi <= last; ++pi) add_background(pi, fwd.transmittance.data[pi]);
+      });
     std::copy(share, share + 3, v_background);
     live_rank_end = std::numeric_limits<std::int32_t>::max();
     return;

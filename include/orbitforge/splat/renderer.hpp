@@ -41,6 +41,7 @@ struct RenderParams {
   double near_plane = 0.01;     // cull Gaussians with camera-space z <= near_plane
   int tile_size = 16;           // pixels per tile side (the image does not depend on it)
   bool tight_extents = true;    // opacity-aware rects (never change the image)
+  bool background_gradient = true;  // backward() computes background_gradient() (RasterParams)
 };
 
 struct RenderStats {
@@ -258,6 +259,7 @@ class Renderer {
     RasterParams<Scalar> rp;
     rp.background = params_.background;
     rp.threads = threads;
+    rp.background_gradient = params_.background_gradient;
     return rp;
   }
   template <class T>

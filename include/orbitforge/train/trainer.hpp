@@ -85,6 +85,8 @@ class Trainer {
     renderer_ = Renderer<Scalar>(rp);
     s_.background = learned_background_for<Scalar>(params);
     renderer_.params().background = background();
+    // Only a learned background steps on its gradient.
+    renderer_.params().background_gradient = s_.background.enabled();
     s_.adam = make_gaussian_adam<Scalar>(params, scene.size());
     s_.stats.reset(scene.size());
     s_.field_adam = Adam<Scalar>(params.adam);
