@@ -369,17 +369,25 @@ TEST_CASE("backward: scalar kernel, SIMD kernel and thread counts agree", "[rend
 }
 
 TEST_CASE("backward without the background gradient: the same splat gradients, a zero background's", "[render][grad]") {
-  // Few splats on a frame with empty tiles: both tile paths skip the sums.
-  auto s = random_splats<double>(40, 70, 52, 404);
-  const LossWeights lw = random_weights(70, 52, 11, true, true);
+  // Few splats, so that some tiles are empty: both tile paths skip the sums.
+  RandomSplatOptions o;
+  o.sigma_max = 3;
+  auto s = random_splats<double>(40, 100, 84, 404, o);
+  BinWorkspace<double> bins;
+  bin_splats(s, 100, 84, 16, bins);
+  int empty = 0;
+  for (int t = 0; t < bins.grid.tile_count(); ++t) empty += bins.tile_offsets[std::size_t(t) + 1] == bins.tile_offsets[std::size_t(t)];
+  REQUIRE(empty > 0);
+  REQUIRE(empty < bins.grid.tile_count());
+  const LossWeights lw = random_weights(100, 84, 11, true, true);
   RasterParams<double> p;
   p.background = {{0.3, 0.6, 0.9}};
   for (int threads : {1, 2}) {
     p.threads = threads;
     p.background_gradient = true;
-    const auto with = analytic(s, 70, 52, 16, p, lw, true, true);
+    const auto with = analytic(s, 100, 84, 16, p, lw, true, true);
     p.background_gradient = false;
-    const auto without = analytic(s, 70, 52, 16, p, lw, true, true);
+    const auto without = analytic(s, 100, 84, 16, p, lw, true, true);
     for (int c = 0; c < 3; ++c) {
       CHECK(with.v_background[std::size_t(c)] != 0);
       CHECK(without.v_background[std::size_t(c)] == 0);
