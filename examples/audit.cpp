@@ -44,6 +44,7 @@
 #include "cli.hpp"
 #include "orbitforge/audit/audit_shard.hpp"
 #include "orbitforge/audit/audit_table.hpp"
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/io/colmap.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/pipeline/inputs/recorded_input.hpp"
@@ -157,6 +158,7 @@ std::unique_ptr<CLI::App> define(Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  relaunch_with_huge_pages(argv);  // first: glibc reads its tunables only at start
   return cli::run([&]() -> int {
     Args args;
     // Audit defaults: supported views scored on source frames no reconstruction trained on, and both comparisons.

@@ -26,6 +26,7 @@
 #include <string>
 
 #include "cli.hpp"
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/pipeline/completion/providers.hpp"
 #include "orbitforge/pipeline/inputs/external_tools.hpp"
 #include "orbitforge/pipeline/inputs/frame_inputs.hpp"
@@ -159,6 +160,7 @@ std::unique_ptr<CLI::App> define(Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  relaunch_with_huge_pages(argv);  // first: glibc reads its tunables only at start
   Args args;
   Inputs& in = args.in;
   cli::PipelineFlags& flags = args.flags;

@@ -35,6 +35,7 @@
 #include <optional>
 #include <string>
 
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/deform/median_baker.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/io/colmap.hpp"
@@ -413,6 +414,7 @@ int run(const Args& a, const RunInvocation& invocation) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  relaunch_with_huge_pages(argv);  // first: glibc reads its tunables only at start
   return cli::run([&] {
     Args a;
     const std::unique_ptr<CLI::App> app = cli::parse_with_protocol(

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/io/image_io.hpp"
 #include "orbitforge/io/ply.hpp"
 #include "orbitforge/pipeline/orbit_file.hpp"
@@ -34,6 +35,7 @@ const char* kDescription =
 }  // namespace
 
 int main(int argc, char** argv) {
+  relaunch_with_huge_pages(argv);  // first: glibc reads its tunables only at start
   return cli::run([&] {
     std::string ply, camera_file, orbit_file, out, format = "png", background;
     int every = 1, threads = 0;

@@ -6,6 +6,7 @@
 #include "orbitforge/core/config.hpp"
 #include "orbitforge/core/constants.hpp"
 #include "orbitforge/core/error.hpp"
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"

@@ -1,16 +1,29 @@
 #include <catch2/catch.hpp>
 
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <random>
+#include <sstream>
+#include <string>
 #include <vector>
 
 #include "orbitforge/core/camera.hpp"
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/core/image.hpp"
 #include "orbitforge/core/parallel_for.hpp"
 #include "orbitforge/core/simd.hpp"
+#include "support/temp_dir.hpp"
 
 using namespace orbitforge;
 
@@ -95,6 +108,97 @@ TEMPLATE_TEST_CASE("image planes start on a cache line, so threads writing neigh
     im.data.resize(im.data.size() + 1);
     REQUIRE(reinterpret_cast<std::uintptr_t>(im.data.data()) % kCacheLineBytes == 0);
   }
+}
+
+TEST_CASE("a program relaunches for huge pages only where the kernel gives them on request", "[core][huge_pages]") {
+  REQUIRE(thp_mode("always [madvise] never") == "madvise");
+  REQUIRE(thp_mode("[always] madvise never") == "always");
+  REQUIRE(thp_mode("always madvise [never]") == "never");
+  REQUIRE(thp_mode("") == "");
+  REQUIRE(thp_mode("always madvise never") == "");
+
+  const std::string madvise = "always [madvise] never\n";
+  REQUIRE(huge_page_tunables(madvise, nullptr, nullptr) == std::optional<std::string>("glibc.malloc.hugetlb=1"));
+  // The user's other tunables are kept, and the user's own choice of this one wins.
+  REQUIRE(huge_page_tunables(madvise, "glibc.malloc.arena_max=2", nullptr) ==
+          std::optional<std::string>("glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1"));
+  REQUIRE_FALSE(huge_page_tunables(madvise, "glibc.malloc.hugetlb=0", nullptr));
+  // Set by the relaunch itself, so a relaunched program never relaunches again.
+  REQUIRE_FALSE(huge_page_tunables(madvise, "glibc.malloc.hugetlb=1", nullptr));
+  REQUIRE_FALSE(huge_page_tunables(madvise, nullptr, "0"));
+  REQUIRE(huge_page_tunables(madvise, nullptr, "1"));
+  // Huge pages already given to all memory, or never given: nothing to gain.
+  REQUIRE_FALSE(huge_page_tunables("[always] madvise never", nullptr, nullptr));
+  REQUIRE_FALSE(huge_page_tunables("always madvise [never]", nullptr, nullptr));
+  REQUIRE_FALSE(huge_page_tunables("", nullptr, nullptr));
+}
+
+// Run by the next test in a process of its own: relaunches as a program would,
+// then (in the relaunched process, or the same one where nothing relaunched)
+// writes the GLIBC_TUNABLES it runs with to the file ORBITFORGE_TEST_PROBE_OUT names.
+TEST_CASE("huge-page relaunch probe", "[.relaunch_probe]") {
+  const char* out = std::getenv("ORBITFORGE_TEST_PROBE_OUT");
+  if (out == nullptr) return;  // run by a tag filter that matched it, not by the test below
+  std::string self = std::filesystem::read_symlink("/proc/self/exe").string(), tag = "[.relaunch_probe]";
+  std::vector<char*> argv{self.data(), tag.data(), nullptr};
+  relaunch_with_huge_pages(argv.data());
+  const char* tunables = std::getenv("GLIBC_TUNABLES");
+  std::ofstream(out) << (tunables ? tunables : "");
+}
+
+TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once", "[core][huge_pages]") {
+  if (!std::filesystem::exists("/proc/self/exe")) {
+    WARN("SKIPPED: no /proc/self/exe");
+    return;
+  }
+  orbitforge_test::TempDir dir("relaunch");
+  const std::string out = dir.str("tunables.txt"), log = dir.str("probe.log");
+  std::string self = std::filesystem::read_symlink("/proc/self/exe").string(), tag = "[.relaunch_probe]";
+  std::vector<char*> argv{self.data(), tag.data(), nullptr};
+  // The child's environment: this one's, without the settings the test decides.
+  std::vector<std::string> env_text{"ORBITFORGE_TEST_PROBE_OUT=" + out};
+  for (char** e = environ; *e != nullptr; ++e) {
+    const std::string entry = *e;
+    if (entry.rfind("GLIBC_TUNABLES=", 0) != 0 && entry.rfind("ORBITFORGE_HUGE_PAGES=", 0) != 0 &&
+        entry.rfind("ORBITFORGE_TEST_PROBE_OUT=", 0) != 0)
+      env_text.push_back(entry);
+  }
+  const auto run_probe = [&](const char* opt_out) {
+    std::vector<std::string> text = env_text;
+    if (opt_out) text.push_back(std::string("ORBITFORGE_HUGE_PAGES=") + opt_out);
+    std::vector<char*> env;
+    for (auto& t : text) env.push_back(t.data());
+    env.push_back(nullptr);
+    std::filesystem::remove(out);
+    // The probe's Catch output goes to a log, shown if it fails.
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    pid_t pid = 0;
+    const int spawned = posix_spawn(&pid, self.c_str(), &actions, nullptr, argv.data(), env.data());
+    posix_spawn_file_actions_destroy(&actions);
+    REQUIRE(spawned == 0);
+    int status = 0;
+    REQUIRE(waitpid(pid, &status, 0) == pid);
+    std::stringstream probe_log;
+    probe_log << std::ifstream(log).rdbuf();
+    INFO("probe output:\n" << probe_log.str());
+    REQUIRE(WIFEXITED(status));
+    REQUIRE(WEXITSTATUS(status) == 0);
+    std::ifstream in(out);
+    REQUIRE(in);
+    std::string value;
+    std::getline(in, value);
+    return value;
+  };
+  std::string thp;
+  std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), thp);
+  const bool expected = huge_page_relaunch_built && thp_mode(thp) == "madvise";
+  INFO("transparent huge pages: " << thp << "; relaunch built: " << huge_page_relaunch_built);
+  // The relaunched probe relaunches no further (its tunable is set), so it exits
+  // and writes what it ran with.
+  REQUIRE(run_probe(nullptr) == (expected ? "glibc.malloc.hugetlb=1" : ""));
+  REQUIRE(run_probe("0").empty());
 }
 
 TEMPLATE_TEST_CASE("simd::hadd_rows gives each row's lane sum, in row order", "[core][simd]", float, double) {
