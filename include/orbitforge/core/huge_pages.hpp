@@ -9,9 +9,8 @@
 // cloud images), and glibc 2.35 and later asks for them for its whole heap when
 // started with GLIBC_TUNABLES=glibc.malloc.hugetlb=1. Tunables are read only when
 // a process starts, so a program that wants them re-executes itself once with the
-// tunable added (docs/benchmarks.md, "Huge pages": an 896x512 frame of 300k
-// Gaussians renders in 0.75-0.86x the time; robot at the paper's budget took
-// 0.97x, with the same result).
+// tunable added (docs/benchmarks.md, "Huge pages": the paper's budget took
+// 0.92-0.97x the time on two videos, with the same result).
 //
 // relaunch_with_huge_pages(argv) does that as a program's first statement. It does
 // nothing where it would not help: transparent huge pages "always" (already
