@@ -15,6 +15,7 @@
 #include <string>
 
 #include "cli.hpp"
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/io/atomic_file.hpp"
 #include "orbitforge/pipeline/completion/providers.hpp"
 #include "orbitforge/pipeline/inputs/colmap_input.hpp"
@@ -316,6 +317,7 @@ inline RunInvocation record_invocation(CLI::App& app, int argc, char** argv, con
   RunInvocation inv;
   inv.command = shell_command(argc, argv);
   inv.settings = settings_text(app);
+  inv.memory_pages = huge_page_state();
   std::filesystem::create_directories(out);
   write_file_atomic((std::filesystem::path(out) / "settings.toml").string(), inv.settings);
   return inv;

@@ -388,7 +388,8 @@ int run(const Args& a, const RunInvocation& invocation) {
   m["frame"] = {{"origin", {d.frame.origin[0], d.frame.origin[1], d.frame.origin[2]}}, {"scale", d.frame.scale}};
   if (!shortcuts.empty()) m["levers"] = shortcuts;
   // How the run was asked for: its command line and the settings OUT/settings.toml replays.
-  m["invocation"] = {{"command", invocation.command}, {"settings", invocation.settings}};
+  m["invocation"] = {{"command", invocation.command}, {"settings", invocation.settings},
+                     {"memory_pages", invocation.memory_pages}};
   GaussianScene<S> out_scene;
   const std::array<S, 3> rc = trainer.background();
   const std::array<double, 3> resting_color{{double(rc[0]), double(rc[1]), double(rc[2])}};
@@ -424,7 +425,7 @@ int main(int argc, char** argv) {
       throw UsageError("reconstruct: --holdout-every must be 0 (none) or at least 2 (1 would hold out every frame)");
     if (a.learn_background && a.shared.random_background)
       throw UsageError("reconstruct: --learn-background and --background random exclude each other");
-    RunInvocation invocation{cli::shell_command(argc, argv), cli::settings_text(*app)};
+    RunInvocation invocation{cli::shell_command(argc, argv), cli::settings_text(*app), huge_page_state()};
     try {
       return run(a, invocation);
     } catch (const std::exception& e) {

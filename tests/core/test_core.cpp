@@ -133,17 +133,42 @@ TEST_CASE("a program relaunches for huge pages only where the kernel gives them 
   REQUIRE_FALSE(huge_page_tunables("", nullptr, nullptr));
 }
 
+TEST_CASE("a run's record says which pages its heap gets", "[core][huge_pages]") {
+  const std::string madvise = "always [madvise] never\n";
+  CHECK(huge_page_state("[always] madvise never", nullptr) == "2 MB pages (transparent huge pages: always)");
+  CHECK(huge_page_state("always madvise [never]", "glibc.malloc.hugetlb=1") ==
+        "4 KB pages (transparent huge pages: never)");
+  CHECK(huge_page_state("", nullptr) == "unknown (no transparent huge page mode)");
+  CHECK(huge_page_state(madvise, nullptr) == "4 KB pages (transparent huge pages: madvise; not requested)");
+  CHECK(huge_page_state(madvise, "glibc.malloc.hugetlb=0") == huge_page_state(madvise, nullptr));
+  // The tunable only counts where glibc's allocator reads it (not under a sanitizer).
+  const std::string requested = huge_page_relaunch_built
+                                    ? "2 MB pages on request (transparent huge pages: madvise; glibc.malloc.hugetlb=1)"
+                                    : "4 KB pages (transparent huge pages: madvise; not requested)";
+  CHECK(huge_page_state(madvise, "glibc.malloc.hugetlb=1") == requested);
+  CHECK(huge_page_state(madvise, "glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1:glibc.malloc.tcache_count=0") ==
+        requested);
+}
+
+// The command line that runs the probe below: this test binary on the probe's hidden tag.
+struct RelaunchProbeCommand {
+  std::string self = std::filesystem::read_symlink("/proc/self/exe").string(), tag = "[.relaunch_probe]";
+  std::vector<char*> argv{self.data(), tag.data(), nullptr};
+  RelaunchProbeCommand() = default;
+  RelaunchProbeCommand(const RelaunchProbeCommand&) = delete;  // argv points into this object
+};
+
 // Run by the next test in a process of its own: relaunches as a program would,
 // then (in the relaunched process, or the same one where nothing relaunched)
-// writes the GLIBC_TUNABLES it runs with to the file ORBITFORGE_TEST_PROBE_OUT names.
+// writes the GLIBC_TUNABLES it runs with, and huge_page_state(), on two lines to
+// the file ORBITFORGE_TEST_PROBE_OUT names.
 TEST_CASE("huge-page relaunch probe", "[.relaunch_probe]") {
   const char* out = std::getenv("ORBITFORGE_TEST_PROBE_OUT");
   if (out == nullptr) return;  // run by a tag filter that matched it, not by the test below
-  std::string self = std::filesystem::read_symlink("/proc/self/exe").string(), tag = "[.relaunch_probe]";
-  std::vector<char*> argv{self.data(), tag.data(), nullptr};
-  relaunch_with_huge_pages(argv.data());
+  RelaunchProbeCommand command;
+  relaunch_with_huge_pages(command.argv.data());
   const char* tunables = std::getenv("GLIBC_TUNABLES");
-  std::ofstream(out) << (tunables ? tunables : "");
+  std::ofstream(out) << (tunables ? tunables : "") << "\n" << huge_page_state() << "\n";
 }
 
 TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once", "[core][huge_pages]") {
@@ -153,8 +178,7 @@ TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once",
   }
   orbitforge_test::TempDir dir("relaunch");
   const std::string out = dir.str("tunables.txt"), log = dir.str("probe.log");
-  std::string self = std::filesystem::read_symlink("/proc/self/exe").string(), tag = "[.relaunch_probe]";
-  std::vector<char*> argv{self.data(), tag.data(), nullptr};
+  RelaunchProbeCommand command;
   // The child's environment: this one's, without the settings the test decides.
   std::vector<std::string> env_text{"ORBITFORGE_TEST_PROBE_OUT=" + out};
   for (char** e = environ; *e != nullptr; ++e) {
@@ -175,7 +199,7 @@ TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once",
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     pid_t pid = 0;
-    const int spawned = posix_spawn(&pid, self.c_str(), &actions, nullptr, argv.data(), env.data());
+    const int spawned = posix_spawn(&pid, command.self.c_str(), &actions, nullptr, command.argv.data(), env.data());
     posix_spawn_file_actions_destroy(&actions);
     REQUIRE(spawned == 0);
     int status = 0;
@@ -187,9 +211,10 @@ TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once",
     REQUIRE(WEXITSTATUS(status) == 0);
     std::ifstream in(out);
     REQUIRE(in);
-    std::string value;
-    std::getline(in, value);
-    return value;
+    std::pair<std::string, std::string> tunables_and_state;
+    std::getline(in, tunables_and_state.first);
+    std::getline(in, tunables_and_state.second);
+    return tunables_and_state;
   };
   std::string thp;
   std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), thp);
@@ -197,8 +222,12 @@ TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once",
   INFO("transparent huge pages: " << thp << "; relaunch built: " << huge_page_relaunch_built);
   // The relaunched probe relaunches no further (its tunable is set), so it exits
   // and writes what it ran with.
-  REQUIRE(run_probe(nullptr) == (expected ? "glibc.malloc.hugetlb=1" : ""));
-  REQUIRE(run_probe("0").empty());
+  const auto relaunched = run_probe(nullptr), opted_out = run_probe("0");
+  REQUIRE(relaunched.first == (expected ? "glibc.malloc.hugetlb=1" : ""));
+  REQUIRE(opted_out.first.empty());
+  // And each process's record says what it got.
+  CHECK(relaunched.second.rfind(expected ? "2 MB pages on request" : huge_page_state(thp, nullptr), 0) == 0);
+  CHECK(opted_out.second == huge_page_state(thp, nullptr));
 }
 
 TEMPLATE_TEST_CASE("simd::hadd_rows gives each row's lane sum, in row order", "[core][simd]", float, double) {

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "orbitforge/core/huge_pages.hpp"
 #include "orbitforge/pipeline/pipeline.hpp"
 #include "support/data.hpp"
 #include "support/temp_dir.hpp"
@@ -474,13 +475,15 @@ TEST_CASE("pipeline: a second run skips every stage and changes nothing", "[pipe
   copy_run(dir, copy);
   PipelineParams p = tiny_params();
   p.iters_g1 = kQuick ? 20 : 40;
-  p.invocation = {"full_pipeline --iters-g1 40 --out 'resume copy'", "iters-g1=40\n"};
+  p.invocation = {"full_pipeline --iters-g1 40 --out 'resume copy'", "iters-g1=40\n", huge_page_state()};
   PipelineRun<float> s2;
   const auto r2 = run_pipeline(tiny_input_data(), p, copy.string(), nullptr, &s2);
   CHECK(s2.ran == std::vector<std::string>{"g1", "report"});
   // The report the run wrote records its invocation as given.
   CHECK(r2.at("invocation").at("command") == p.invocation.command);
   CHECK(r2.at("invocation").at("settings") == p.invocation.settings);
+  CHECK(r2.at("invocation").at("memory_pages") == p.invocation.memory_pages);
+  CHECK_FALSE(p.invocation.memory_pages.empty());
   CHECK(parse_file(copy / "report.json").at("invocation") == r2.at("invocation"));
   CHECK_FALSE(nlohmann::json::parse(before).contains("invocation"));  // none given: none recorded
   CHECK(s2.skipped == std::vector<std::string>{"orbit", "g0", "static_proxy", "completion"});

@@ -17,7 +17,8 @@
 // given) or "never", another OS or C library, a sanitizer build (its allocator is
 // not glibc's), GLIBC_TUNABLES already naming the setting (the user's choice), or
 // ORBITFORGE_HUGE_PAGES=0 in the environment. Programs the process starts inherit
-// the tunable.
+// the tunable. huge_page_state() says which pages the running process's heap
+// gets, for a run's record: its timings depend on it.
 #include <cstdlib>
 #include <fstream>
 #include <optional>
@@ -67,6 +68,30 @@ inline std::optional<std::string> huge_page_tunables(const std::string& thp_enab
   const std::string current = tunables == nullptr ? std::string() : std::string(tunables);
   if (current.find("glibc.malloc.hugetlb") != std::string::npos) return std::nullopt;
   return current.empty() ? std::string("glibc.malloc.hugetlb=1") : current + ":glibc.malloc.hugetlb=1";
+}
+
+// Which pages a process's heap gets, in words, from the kernel's mode text and
+// the process's GLIBC_TUNABLES (null when unset): "2 MB pages ..." or "4 KB
+// pages ...", then why in brackets, or "unknown ..." where the kernel does not say.
+inline std::string huge_page_state(const std::string& thp_enabled_text, const char* tunables) {
+  const std::string mode = thp_mode(thp_enabled_text);
+  if (mode.empty()) return "unknown (no transparent huge page mode)";
+  if (mode == "always") return "2 MB pages (transparent huge pages: always)";
+  if (mode != "madvise") return "4 KB pages (transparent huge pages: " + mode + ")";
+  const std::string t = tunables == nullptr ? std::string() : std::string(tunables);
+  const auto at = t.find("glibc.malloc.hugetlb=");
+  const std::string value = at == std::string::npos ? std::string() : t.substr(at + 21, t.find(':', at) - at - 21);
+  if (huge_page_relaunch_built && !value.empty() && value != "0")
+    return "2 MB pages on request (transparent huge pages: madvise; glibc.malloc.hugetlb=" + value + ")";
+  return "4 KB pages (transparent huge pages: madvise; not requested)";
+}
+
+// huge_page_state for the running process.
+inline std::string huge_page_state() {
+  std::ifstream file("/sys/kernel/mm/transparent_hugepage/enabled");
+  std::string text;
+  if (file) std::getline(file, text);
+  return huge_page_state(text, std::getenv("GLIBC_TUNABLES"));
 }
 
 // Re-executes the running program with glibc's huge-page tunable where that helps

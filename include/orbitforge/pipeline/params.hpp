@@ -43,6 +43,7 @@ inline G1Data parse_g1_data(const std::string& s) {
 struct RunInvocation {
   std::string command;   // the command line, e.g. shell-quoted
   std::string settings;  // the settings the caller resolved, e.g. the text of a settings file it wrote
+  std::string memory_pages;  // which pages the process's heap got (core/huge_pages.hpp's huge_page_state)
   bool empty() const { return command.empty() && settings.empty(); }
 };
 

@@ -365,8 +365,11 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
     r["frame"] = {{"origin", {in.frame.origin[0], in.frame.origin[1], in.frame.origin[2]}},
                   {"scale", in.frame.scale},
                   {"files", in.frame.far_from_origin() ? "model frame, float64 positions" : "model frame"}};
-  if (!p.invocation.empty())
+  if (!p.invocation.empty()) {
     r["invocation"] = {{"command", p.invocation.command}, {"settings", p.invocation.settings}};
+    // The stages' timings depend on it; it is the report writer's, which a resumed run shares with the stages it ran.
+    if (!p.invocation.memory_pages.empty()) r["invocation"]["memory_pages"] = p.invocation.memory_pages;
+  }
   // What each reconstruction's levers decided (training_record.hpp).
   nlohmann::json training = nlohmann::json::object();
   for (const std::string s : {"g0", "g1", "g1_paper", "bound"})
