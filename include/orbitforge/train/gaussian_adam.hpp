@@ -57,11 +57,12 @@ void step_group(Adam<Scalar>& adam, int id, std::vector<Scalar>& params, const s
 }
 
 // adam_apply over `rows` rows of `width` values (at most 1024) whose rows lie
-// the given strides apart. Strided operands are gathered into contiguous scratch, a few
-// rows at a time, so that the update runs on whole vectors: SH's DC and rest
-// rows are 3 and 45 values, and updating each row on its own spent most of the
-// optimizer's time in adam_apply's padded tail. The update of each value is
-// the same arithmetic wherever it sits, so the results do not change.
+// the given strides apart. Strided operands are gathered into contiguous
+// scratch, a few rows at a time, so that the update runs on whole vectors:
+// SH's DC and rest rows are 3 and 45 values, and updating each row on its own
+// sent every row's ragged end through adam_apply's zero-padded copy
+// (docs/benchmarks.md, "The Gaussians' Adam step"). Each value gets the same
+// arithmetic wherever it sits, so the results do not change.
 template <class Scalar>
 void adam_apply_rows(const AdamStep<Scalar>& c, std::size_t rows, std::size_t width, Scalar* p, std::size_t p_stride,
                      const Scalar* g, std::size_t g_stride, Scalar* m, Scalar* v, std::size_t mv_stride) {
