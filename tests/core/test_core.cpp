@@ -134,6 +134,11 @@ TEST_CASE("a program relaunches for huge pages only where the kernel gives them 
 }
 
 TEST_CASE("a run's record says which pages its heap gets", "[core][huge_pages]") {
+  CHECK(hugetlb_tunable("glibc.malloc.hugetlb=1") == std::optional<std::string>("1"));
+  CHECK(hugetlb_tunable("glibc.malloc.arena_max=2:glibc.malloc.hugetlb=0:glibc.malloc.tcache_count=0") ==
+        std::optional<std::string>("0"));
+  CHECK_FALSE(hugetlb_tunable("glibc.malloc.arena_max=2"));
+  CHECK_FALSE(hugetlb_tunable(nullptr));
   const std::string madvise = "always [madvise] never\n";
   CHECK(huge_page_state("[always] madvise never", nullptr) == "2 MB pages (transparent huge pages: always)");
   CHECK(huge_page_state("always madvise [never]", "glibc.malloc.hugetlb=1") ==
@@ -216,8 +221,7 @@ TEST_CASE("a program relaunched for huge pages runs with glibc's tunable, once",
     std::getline(in, tunables_and_state.second);
     return tunables_and_state;
   };
-  std::string thp;
-  std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), thp);
+  const std::string thp = thp_enabled_text();
   const bool expected = huge_page_relaunch_built && thp_mode(thp) == "madvise";
   INFO("transparent huge pages: " << thp << "; relaunch built: " << huge_page_relaunch_built);
   // The relaunched probe relaunches no further (its tunable is set), so it exits

@@ -58,6 +58,25 @@ inline std::string thp_mode(const std::string& enabled_text) {
   return enabled_text.substr(open + 1, close - open - 1);
 }
 
+// The text of /sys/kernel/mm/transparent_hugepage/enabled, empty where there is none.
+inline std::string thp_enabled_text() {
+  std::ifstream file("/sys/kernel/mm/transparent_hugepage/enabled");
+  std::string text;
+  if (file) std::getline(file, text);
+  return text;
+}
+
+// The value GLIBC_TUNABLES text (null when unset) gives glibc.malloc.hugetlb,
+// or nothing where it does not name it.
+inline std::optional<std::string> hugetlb_tunable(const char* tunables) {
+  if (tunables == nullptr) return std::nullopt;
+  const std::string t(tunables), key = "glibc.malloc.hugetlb=";
+  const auto at = t.find(key);
+  if (at == std::string::npos) return std::nullopt;
+  const auto end = t.find(':', at);
+  return t.substr(at + key.size(), end == std::string::npos ? std::string::npos : end - at - key.size());
+}
+
 // The GLIBC_TUNABLES value to relaunch with, or nothing when a relaunch would not
 // help or is not wanted. `tunables` is the current value (null when unset),
 // `opt_out` the ORBITFORGE_HUGE_PAGES value (null when unset; "0" refuses).
@@ -65,8 +84,8 @@ inline std::optional<std::string> huge_page_tunables(const std::string& thp_enab
                                                      const char* opt_out) {
   if (opt_out != nullptr && std::string(opt_out) == "0") return std::nullopt;
   if (thp_mode(thp_enabled_text) != "madvise") return std::nullopt;
+  if (hugetlb_tunable(tunables)) return std::nullopt;
   const std::string current = tunables == nullptr ? std::string() : std::string(tunables);
-  if (current.find("glibc.malloc.hugetlb") != std::string::npos) return std::nullopt;
   return current.empty() ? std::string("glibc.malloc.hugetlb=1") : current + ":glibc.malloc.hugetlb=1";
 }
 
@@ -78,30 +97,22 @@ inline std::string huge_page_state(const std::string& thp_enabled_text, const ch
   if (mode.empty()) return "unknown (no transparent huge page mode)";
   if (mode == "always") return "2 MB pages (transparent huge pages: always)";
   if (mode != "madvise") return "4 KB pages (transparent huge pages: " + mode + ")";
-  const std::string t = tunables == nullptr ? std::string() : std::string(tunables);
-  const auto at = t.find("glibc.malloc.hugetlb=");
-  const std::string value = at == std::string::npos ? std::string() : t.substr(at + 21, t.find(':', at) - at - 21);
-  if (huge_page_relaunch_built && !value.empty() && value != "0")
-    return "2 MB pages on request (transparent huge pages: madvise; glibc.malloc.hugetlb=" + value + ")";
+  const auto value = hugetlb_tunable(tunables);
+  if (huge_page_relaunch_built && value && !value->empty() && *value != "0")
+    return "2 MB pages on request (transparent huge pages: madvise; glibc.malloc.hugetlb=" + *value + ")";
   return "4 KB pages (transparent huge pages: madvise; not requested)";
 }
 
 // huge_page_state for the running process.
-inline std::string huge_page_state() {
-  std::ifstream file("/sys/kernel/mm/transparent_hugepage/enabled");
-  std::string text;
-  if (file) std::getline(file, text);
-  return huge_page_state(text, std::getenv("GLIBC_TUNABLES"));
-}
+inline std::string huge_page_state() { return huge_page_state(thp_enabled_text(), std::getenv("GLIBC_TUNABLES")); }
 
 // Re-executes the running program with glibc's huge-page tunable where that helps
 // (see above); returns when it does not, or when the re-execution fails (the
 // program then runs as it would have).
 inline void relaunch_with_huge_pages(char** argv) {
 #if ORBITFORGE_DETAIL_HUGE_PAGE_RELAUNCH
-  std::ifstream file("/sys/kernel/mm/transparent_hugepage/enabled");
-  std::string text;
-  if (!file || !std::getline(file, text)) return;
+  const std::string text = thp_enabled_text();
+  if (text.empty()) return;
   const char* before = std::getenv("GLIBC_TUNABLES");
   const std::optional<std::string> saved = before ? std::optional<std::string>(before) : std::nullopt;
   const auto value = huge_page_tunables(text, before, std::getenv("ORBITFORGE_HUGE_PAGES"));
