@@ -3,8 +3,10 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <random>
 
 #include "orbitforge/train/losses.hpp"
@@ -315,6 +317,104 @@ TEST_CASE("combined loss value and gradient", "[train][losses]") {
     // Other lambda.
     const auto t5 = combined_loss(x, y, v, ws, 0.5);
     CHECK(t5.total == Approx(0.5 * terms.l1 + 0.5 * (1 - terms.ssim)).epsilon(1e-13));
+  }
+}
+
+TEMPLATE_TEST_CASE("combined loss: its L1 parts, done as SSIM finishes each row, give the separate passes' bits",
+                   "[train][losses]", float, double) {
+  using S = TestType;
+  std::mt19937 rng(37);
+  // Wide enough for whole SIMD vectors, tall enough for several bands of rows.
+  for (const Size s : {Size{150, 140, 3}, Size{33, 200, 3}, Size{21, 70, 1}}) {
+    INFO(s.w << "x" << s.h << "x" << s.c);
+    const auto x = random_image<S>(s.w, s.h, s.c, rng);
+    const auto y = related_image(x, rng, 0.3);
+    const S lambda = S(0.2);
+    for (int threads = 1; threads <= 3; ++threads) {
+      INFO(threads << " threads");
+      SsimWorkspace<S> ws_ref;
+      Image<S> v_ref;
+      const S ssim_ref = ssim(x, y, ws_ref, SsimParams{}, threads);
+      ssim_vjp(x, y, -lambda, ws_ref, v_ref, false, threads);
+      l1_loss_vjp(x, y, S(1) - lambda, v_ref, true);
+      double sq = 0;
+      for (std::size_t i = 0; i < x.data.size(); ++i) sq += double(x.data[i] - y.data[i]) * double(x.data[i] - y.data[i]);
+
+      SsimWorkspace<S> ws;
+      Image<S> v;
+      const auto terms = combined_loss(x, y, v, ws, 0.2, threads);
+      CHECK(terms.ssim == ssim_ref);
+      CHECK(v.data == v_ref.data);
+      CHECK(double(terms.l1) == Approx(double(l1_loss(x, y))).epsilon(1e-6));
+      CHECK(terms.mse == Approx(sq / double(x.data.size())).epsilon(1e-6));
+    }
+  }
+}
+
+TEST_CASE("ssim_with and ssim_vjp_with call after_row once per row", "[train][losses]") {
+  std::mt19937 rng(41);
+  const auto x = random_image<float>(40, 211, 3, rng);
+  const auto y = related_image(x, rng, 0.3);
+  for (int threads = 1; threads <= 3; ++threads) {
+    INFO(threads << " threads");
+    std::vector<std::atomic<int>> forward(211), backward(211);
+    SsimWorkspace<float> ws;
+    Image<float> v(40, 211, 3);
+    std::fill(v.data.begin(), v.data.end(), std::numeric_limits<float>::quiet_NaN());  // overwritten row by row
+    const float with = ssim_with(x, y, ws, SsimParams{}, threads, [&](int row) { ++forward[std::size_t(row)]; });
+    ssim_vjp_with(x, y, 1.0f, ws, v, false, threads, [&](int row) {
+      // The row's gradient is written before its call.
+      for (int px = 0; px < v.width; ++px) CHECK(std::isfinite(v(px, row, 0)));
+      ++backward[std::size_t(row)];
+    });
+    SsimWorkspace<float> ws_plain;
+    CHECK(with == ssim(x, y, ws_plain, SsimParams{}, threads));
+    // The one-pass forward and backward: each band's forward runs beyond its
+    // rows, but calls for its own rows only.
+    std::vector<std::atomic<int>> forward1(211), backward1(211);
+    Image<float> v1(40, 211, 3);
+    std::fill(v1.data.begin(), v1.data.end(), std::numeric_limits<float>::quiet_NaN());
+    SsimWorkspace<float> ws1;
+    const float one_pass = ssim_and_vjp_with(
+        x, y, 1.0f, ws1, v1, SsimParams{}, threads, [&](int row) { ++forward1[std::size_t(row)]; },
+        [&](int row) {
+          for (int px = 0; px < v1.width; ++px) CHECK(std::isfinite(v1(px, row, 0)));
+          ++backward1[std::size_t(row)];
+        });
+    CHECK(one_pass == with);
+    CHECK(v1.data == v.data);
+    int once = 0;
+    for (std::size_t r = 0; r < forward.size(); ++r)
+      once += forward[r] == 1 && backward[r] == 1 && forward1[r] == 1 && backward1[r] == 1 ? 1 : 0;
+    CHECK(once == 211);
+  }
+}
+
+TEST_CASE("ssim in one pass with its gradient: the separate passes' bits at every window and size",
+          "[train][losses]") {
+  std::mt19937 rng(43);
+  for (const int window : {1, 3, 7, 11, 13}) {
+    SsimParams p;
+    p.window = window;
+    p.sigma = window == 11 ? 1.5 : 0.4 + 0.2 * window;
+    // Small, narrower and shorter than the window, and tall enough for several bands.
+    for (const Size s : {Size{13, 9, 3}, Size{6, 4, 3}, Size{12, 12, 1}, Size{19, 300, 3}, Size{70, 520, 2}}) {
+      const auto x = random_image<double>(s.w, s.h, s.c, rng);
+      const auto y = related_image(x, rng, 0.3);
+      for (const int threads : {1, 2, 3}) {
+        INFO("window " << window << ", " << s.w << "x" << s.h << "x" << s.c << ", " << threads << " threads");
+        SsimWorkspace<double> ws, ws1;
+        Image<double> v, v1;
+        const double value = ssim(x, y, ws, p, threads);
+        ssim_vjp(x, y, 0.7, ws, v, false, threads);
+        const double one_pass = ssim_and_vjp_with(x, y, 0.7, ws1, v1, p, threads, [](int) {}, [](int) {});
+        CHECK(one_pass == value);
+        CHECK(v1.data == v.data);
+        // The one pass keeps no forward for ssim_vjp.
+        Image<double> v2;
+        CHECK_THROWS_WITH(ssim_vjp(x, y, 0.7, ws1, v2), Catch::Contains("holds no forward pass"));
+      }
+    }
   }
 }
 

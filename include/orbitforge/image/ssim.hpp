@@ -21,6 +21,10 @@
 // window is its own adjoint. Rows of the intermediate maps are planar ([map][x]), so
 // the per-pixel SSIM arithmetic runs on contiguous arrays and vectorises (the
 // interleaved [x][map] layout left it scalar, most of the loss's time).
+// A loss, whose weight on SSIM is known before the pass, takes the value and the
+// gradient in one pass (ssim_and_vjp_with): each band's derivative rows go
+// straight from the forward filter into the backward one instead of through a
+// whole-image map, which left the loss waiting on memory in training.
 // All work is split over rows with parallel_for; partial
 // sums are kept per row and added in row order, so results do not depend on the thread
 // count. A caller-owned SsimWorkspace holds every buffer: after the first call at a
@@ -257,65 +261,113 @@ void column_taps1(const Scalar* const* in, Scalar* out, std::size_t n, const Sca
   }
 }
 
-// The 2D filter over bands of rows, without materialising the row-filtered
-// image: each worker keeps the last 2r + 4 row-filtered rows of its band in a
-// ring (about 1 MB for the forward at 896 wide) and filters along columns from there, four output
-// rows at a time (column_taps4). A full-image intermediate made the loss memory
-// bound (it scaled 1.3x on two cores). Bands overlap by r rows on each side,
-// which are filtered twice.
+// The 2D filter over one band of output rows [y0, y1), without materialising
+// the row-filtered image: it keeps the last 2r + 4 row-filtered rows in a ring
+// (about 1 MB for the forward at 896 wide) and filters along columns from
+// there, four output rows at a time (column_taps4). A full-image intermediate
+// made the loss memory bound (it scaled 1.3x on two cores). A band reads the
+// r source rows on each side of it, which the neighbouring bands filter too.
 //   source(y, scratch) -> pointer to row y's `planes` planes of W values, each
 //     between r zeros (padded_row_stride apart); it may fill scratch, which
-//     has that layout with its zeros in place
-//   sink(y, filtered, scratch) gets row y filtered in 2D (planes W apart) and a W-value scratch.
-// Each output row is the same sum in the same order whatever the banding, so the
-// results do not depend on the thread count.
+//     has that layout with its zeros in place. Rows are pulled once each, in
+//     increasing order, from max(0, y0 - r) to min(H, y1 + r) - 1.
+// next() makes the following rows; each output row is the same sum in the same
+// order whatever the banding, so results do not depend on the thread count.
+template <class Scalar>
+class BandFilter2D {
+ public:
+  static constexpr int K = 4;  // output rows per column pass
+
+  // Scalars of working memory one band filter needs, a cache line of slack included.
+  static std::size_t memory_values(int W, int planes, int r) {
+    const std::size_t len = std::size_t(planes) * std::size_t(W);
+    return std::size_t(2 * r + K + K + 1) * len + std::size_t(planes) * padded_row_stride(W, r) + std::size_t(W) +
+           kLine;
+  }
+
+  BandFilter2D(Scalar* memory, int W, int H, int planes, const Scalar* w, int r, int y0, int y1)
+      : W_(W), H_(H), planes_(planes), r_(r), y_(y0), y1_(y1), next_(std::max(0, y0 - r)), w_(w) {
+    // The ring starts on a cache line: with len a multiple of 16 values every
+    // ring row is then aligned, and the column pass's loads and the row pass's
+    // stores do not straddle lines (docs/benchmarks.md).
+    memory += (kLine - reinterpret_cast<std::uintptr_t>(memory) / sizeof(Scalar) % kLine) % kLine;
+    len_ = std::size_t(planes) * std::size_t(W);
+    ring_rows_ = 2 * r + K;
+    ring_ = memory;
+    raw_ = ring_ + std::size_t(ring_rows_) * len_;
+    const std::size_t padded_len = std::size_t(planes) * padded_row_stride(W, r);
+    Scalar* cols = raw_ + padded_len;
+    zeros_ = cols + std::size_t(K) * len_;
+    scratch_ = zeros_ + len_;
+    std::fill(zeros_, zeros_ + len_, Scalar(0));
+    std::fill(raw_, raw_ + padded_len, Scalar(0));
+    for (int k = 0; k < K; ++k) out_[k] = cols + std::size_t(k) * len_;
+    in_.resize(std::size_t(2 * r + K));
+  }
+
+  bool done() const { return y_ >= y1_; }
+  int row() const { return y_; }  // the first row the next call makes
+
+  // Filters the rows [row(), row() + n) with n = min(K, y1 - row()) and returns n;
+  // output(k) is row row() + k until the next call.
+  template <class Source>
+  int next(Source&& source) {
+    const int rows = std::min(K, y1_ - y_), win = 2 * r_ + 1;
+    for (; next_ <= std::min(H_ - 1, y_ + rows - 1 + r_); ++next_)
+      filter_row(source(next_, raw_), ring_ + std::size_t(next_ % ring_rows_) * len_, W_, planes_, w_, r_);
+    // Rows missing at the image's top or bottom read a zero row.
+    for (int j = 0; j < rows + win - 1; ++j) {
+      const int yy = y_ - r_ + j;
+      in_[std::size_t(j)] = yy < 0 || yy >= H_ ? zeros_ : ring_ + std::size_t(yy % ring_rows_) * len_;
+    }
+    if (rows == K && r_ == 5) {  // the default 11-tap window
+      column_taps4<5>(in_.data(), out_, len_, w_);
+    } else {
+      for (int k = 0; k < rows; ++k) column_taps1(in_.data() + k, out_[k], len_, w_, r_);
+    }
+    y_ += rows;
+    return rows;
+  }
+  Scalar* output(int k) const { return out_[k]; }
+  Scalar* scratch() const { return scratch_; }  // W values for the caller
+
+ private:
+  static constexpr std::size_t kLine = 64 / sizeof(Scalar);
+  int W_, H_, planes_, r_, y_, y1_, next_, ring_rows_ = 0;
+  const Scalar* w_;
+  std::size_t len_ = 0;
+  Scalar *ring_ = nullptr, *raw_ = nullptr, *zeros_ = nullptr, *scratch_ = nullptr;
+  Scalar* out_[K];
+  std::vector<const Scalar*> in_;  // the column pass's 2r + K input rows
+};
+
+// Bands of at least 64 rows keep the overlap small; 4 per thread balance the load.
+inline int filter_bands(int H, int threads) { return std::max(1, std::min(4 * threads, H / 64)); }
+
+// Each worker's working memory: `values` scalars.
+template <class Scalar>
+Scalar* worker_memory(SsimWorkspace<Scalar>& ws, int worker, std::size_t values) {
+  std::vector<Scalar>& b = ws.rows[std::size_t(worker)];
+  if (b.size() < values) b.resize(values);
+  return b.data();
+}
+
+// The 2D filter of the whole image in bands of rows on `threads` threads:
+// sink(y, filtered, scratch) gets row y filtered in 2D (planes W apart) and a
+// W-value scratch, once per row.
 template <class Scalar, class Source, class Sink>
 void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
                     Source&& source, Sink&& sink) {
-  constexpr int K = 4;  // output rows per column pass
-  const std::size_t len = std::size_t(planes) * std::size_t(W);
-  const int win = 2 * r + 1, ring_rows = win + K - 1;
-  const std::size_t padded_len = std::size_t(planes) * padded_row_stride(W, r);
-  // + one cache line, to start the ring on one: with len a multiple of 16
-  // values every ring row is then aligned, and the column pass's loads and the
-  // row pass's stores do not straddle lines (docs/benchmarks.md).
-  constexpr std::size_t kLine = 64 / sizeof(Scalar);
-  const std::size_t need = std::size_t(ring_rows + K + 1) * len + padded_len + std::size_t(W) + kLine;
   if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
-  for (auto& b : ws.rows)
-    if (b.size() < need) b.resize(need);
-  // Bands of at least 64 rows keep the overlap small; 4 per thread balance the load.
-  const int bands = std::max(1, std::min(4 * threads, H / 64));
+  const int bands = filter_bands(H, threads);
   parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
-    Scalar* ring = ws.rows[std::size_t(worker)].data();
-    ring += (kLine - reinterpret_cast<std::uintptr_t>(ring) / sizeof(Scalar) % kLine) % kLine;
-    Scalar* raw = ring + std::size_t(ring_rows) * len;  // one padded source row
-    Scalar* cols = raw + padded_len;                     // K filtered output rows
-    Scalar* zeros = cols + std::size_t(K) * len;
-    Scalar* scratch = zeros + len;
-    std::fill(zeros, zeros + len, Scalar(0));
-    std::fill(raw, raw + padded_len, Scalar(0));
-    std::vector<const Scalar*> in(std::size_t(K + win - 1));
-    Scalar* out[K];
-    for (int k = 0; k < K; ++k) out[k] = cols + std::size_t(k) * len;
     const int y0 = int(std::size_t(H) * band / std::size_t(bands));
     const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
-    auto ring_row = [&](int y) -> const Scalar* {
-      return y < 0 || y >= H ? zeros : ring + std::size_t(y % ring_rows) * len;
-    };
-    int next = std::max(0, y0 - r);  // next source row to filter into the ring
-    for (int y = y0; y < y1; y += K) {
-      const int rows = std::min(K, y1 - y);
-      for (; next <= std::min(H - 1, y + rows - 1 + r); ++next)
-        filter_row(source(next, raw), ring + std::size_t(next % ring_rows) * len, W, planes, w, r);
-      // Rows missing at the image's top or bottom read a zero row.
-      for (int j = 0; j < rows + win - 1; ++j) in[std::size_t(j)] = ring_row(y - r + j);
-      if (rows == K && r == 5) {  // the default 11-tap window
-        column_taps4<5>(in.data(), out, len, w);
-      } else {
-        for (int k = 0; k < rows; ++k) column_taps1(in.data() + k, out[k], len, w, r);
-      }
-      for (int k = 0; k < rows; ++k) sink(y + k, out[k], scratch);
+    BandFilter2D<Scalar> f(worker_memory(ws, worker, BandFilter2D<Scalar>::memory_values(W, planes, r)), W, H, planes,
+                           w, r, y0, y1);
+    while (!f.done()) {
+      const int y = f.row(), rows = f.next(source);
+      for (int k = 0; k < rows; ++k) sink(y + k, f.output(k), f.scratch());
     }
   });
 }
@@ -372,51 +424,41 @@ inline double sum_in_order(const std::vector<double>& v, std::size_t n) {
 
 // ---------------------------------------------------------------- SSIM
 
-// inputs: pred, target [H][W][C] (values nominally in [0, 1]; C1, C2 assume range 1).
-// Returns mean SSIM over pixels and channels. Leaves in `ws` what ssim_vjp needs.
-// threads: 0 = default (see parallel_for).
+namespace ssim_detail {
+
+// One forward pass's shape and constants, and the rows it works on.
 template <class Scalar>
-Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
-            const SsimParams& params = {}, int threads = 0) {
-  using namespace ssim_detail;
-  check_images("ssim", pred, target);
-  const int W = pred.width, H = pred.height, C = pred.channels;
-  const int S5 = 5 * C, S3 = 3 * C;
-  threads = resolve_threads(threads);
+struct SsimPass {
+  const Image<Scalar>& pred;
+  const Image<Scalar>& target;
+  int W, H, C, r;
+  std::size_t stride;  // padded_row_stride
+  Scalar c1, c2, scale;
 
-  gaussian_window<Scalar>(params, ws.window);
-  const int r = params.window / 2;
-  const std::size_t stride = padded_row_stride(W, r);
-  // The derivative maps are the backward's source rows: padded, their zeros
-  // written here once per shape.
-  if (ws.width != W || ws.height != H || ws.channels != C || ws.params.window != params.window ||
-      ws.dmaps.size() != stride * std::size_t(S3) * std::size_t(H))
-    ws.dmaps.assign(stride * std::size_t(S3) * std::size_t(H), Scalar(0));
-  ws.row_sums.resize(std::size_t(H));
-  ws.width = W;
-  ws.height = H;
-  ws.channels = C;
-  ws.params = params;
-  ws.forward_done = false;
+  SsimPass(const Image<Scalar>& p, const Image<Scalar>& t, const SsimParams& params)
+      : pred(p), target(t), W(p.width), H(p.height), C(p.channels), r(params.window / 2),
+        stride(padded_row_stride(p.width, params.window / 2)), c1(Scalar(params.c1)), c2(Scalar(params.c2)),
+        scale(Scalar(1.0 / (double(p.width) * double(p.height) * double(p.channels)))) {}
 
-  const Scalar* w = ws.window.data();
-  const Scalar c1 = Scalar(params.c1), c2 = Scalar(params.c2);
-  const Scalar scale = Scalar(1.0 / (double(W) * double(H) * double(C)));
+  std::size_t at(int y) const { return std::size_t(y) * std::size_t(W) * std::size_t(C); }
 
-  // Per row: the five per-pixel products (planes x, y, x^2, y^2, xy, each C
-  // channels), filtered in 2D, then the SSIM map and its derivatives with respect
-  // to mu_x, G*x^2 and G*xy (already divided by the pixel-channel count).
-  const std::size_t Wz = std::size_t(W);
-  auto products = [&](int y, Scalar* prod) -> const Scalar* {
-    const Scalar* x = pred.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    const Scalar* t = target.data.data() + std::size_t(y) * Wz * std::size_t(C);
-    if (C == 3) products_row<3>(x, t, prod + r, Wz, stride, C);
-    else products_row<0>(x, t, prod + r, Wz, stride, C);
+  // Row y's five per-pixel products (planes x, y, x^2, y^2, xy, each C
+  // channels), written between prod's zeros.
+  const Scalar* products(int y, Scalar* prod) const {
+    const Scalar* x = pred.data.data() + at(y);
+    const Scalar* t = target.data.data() + at(y);
+    if (C == 3) products_row<3>(x, t, prod + r, std::size_t(W), stride, C);
+    else products_row<0>(x, t, prod + r, std::size_t(W), stride, C);
     return prod;
-  };
-  auto ssim_row = [&](int yi, const Scalar* m, Scalar* vals) {
-    const std::size_t y = std::size_t(yi);
-    Scalar* dm = ws.dmaps.data() + y * stride * std::size_t(S3) + std::size_t(r);
+  }
+
+  // The SSIM map of a row from its five filtered planes m (W apart), and its
+  // derivatives with respect to mu_x, G*x^2 and G*xy (already divided by the
+  // pixel-channel count) into dm: the row's 3C padded planes, at their first
+  // zero. vals: W values of scratch. Returns the row's sum of SSIM values.
+  double map_row(const Scalar* m, Scalar* dm, Scalar* vals) const {
+    const std::size_t Wz = std::size_t(W);
+    dm += r;
     double row_sum = 0;
     for (int c = 0; c < C; ++c) {
       const Scalar* __restrict mmx = m + std::size_t(c) * Wz;
@@ -456,52 +498,184 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
       for (std::size_t px = 0; px < Wz; ++px) plane_sum += vals[px];
       row_sum += double(plane_sum);
     }
-    ws.row_sums[y] = row_sum;
-  };
-  filter_2d_rows(ws, W, H, S5, w, r, threads, products, ssim_row);
+    return row_sum;
+  }
 
-  const double total = sum_in_order(ws.row_sums, std::size_t(H));
+  // Row y of v_pred from its three filtered derivative planes f (W apart).
+  void gradient_row(int y, const Scalar* f, Scalar v_ssim, Image<Scalar>& v_pred, bool accumulate) const {
+    const Scalar* x = pred.data.data() + at(y);
+    const Scalar* t = target.data.data() + at(y);
+    Scalar* v = v_pred.data.data() + at(y);
+    if (C == 3) ssim_gradient_row<3>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
+    else ssim_gradient_row<0>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
+  }
+};
+
+// The workspace's record of a forward pass on these images (shape, window and
+// the per-row sums); dmaps: whether the pass keeps the whole image's
+// derivative maps for ssim_vjp (their zeros written once per shape).
+template <class Scalar>
+void begin_forward(SsimWorkspace<Scalar>& ws, const SsimPass<Scalar>& pass, const SsimParams& params, bool dmaps) {
+  gaussian_window<Scalar>(params, ws.window);
+  const std::size_t size = pass.stride * std::size_t(3 * pass.C) * std::size_t(pass.H);
+  if (dmaps && (ws.width != pass.W || ws.height != pass.H || ws.channels != pass.C ||
+                ws.params.window != params.window || ws.dmaps.size() != size))
+    ws.dmaps.assign(size, Scalar(0));
+  ws.row_sums.resize(std::size_t(pass.H));
+  ws.width = pass.W;
+  ws.height = pass.H;
+  ws.channels = pass.C;
+  ws.params = params;
+  ws.forward_done = false;
+}
+
+template <class Scalar>
+void check_gradient_image(const char* who, const Image<Scalar>& pred, Image<Scalar>& v_pred, bool accumulate) {
+  if (accumulate) {
+    ensure(v_pred.same_shape(pred) && v_pred.data.size() == pred.data.size(), who,
+           ": accumulate into a gradient image of a different shape");
+  } else if (!v_pred.same_shape(pred) || v_pred.data.size() != pred.data.size()) {
+    v_pred = Image<Scalar>(pred.width, pred.height, pred.channels);
+  }
+}
+
+}  // namespace ssim_detail
+
+// inputs: pred, target [H][W][C] (values nominally in [0, 1]; C1, C2 assume range 1).
+// Returns mean SSIM over pixels and channels. Leaves in `ws` what ssim_vjp needs.
+// threads: 0 = default (see parallel_for).
+//
+// ssim_with also calls after_row(y) once for each image row y, on the thread
+// that has just finished the row (its SSIM values summed), so that a caller
+// can fuse its own per-row work over the same images while their rows are in
+// cache. Rows finish in no fixed order.
+template <class Scalar, class AfterRow>
+Scalar ssim_with(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
+                 const SsimParams& params, int threads, AfterRow&& after_row) {
+  using namespace ssim_detail;
+  check_images("ssim", pred, target);
+  threads = resolve_threads(threads);
+  const SsimPass<Scalar> pass(pred, target, params);
+  begin_forward(ws, pass, params, true);
+  const std::size_t row3 = pass.stride * std::size_t(3 * pass.C);
+  filter_2d_rows(
+      ws, pass.W, pass.H, 5 * pass.C, ws.window.data(), pass.r, threads,
+      [&](int y, Scalar* prod) { return pass.products(y, prod); },
+      [&](int y, const Scalar* m, Scalar* vals) {
+        ws.row_sums[std::size_t(y)] = pass.map_row(m, ws.dmaps.data() + std::size_t(y) * row3, vals);
+        after_row(y);
+      });
+  const double total = sum_in_order(ws.row_sums, std::size_t(pass.H));
   ws.forward_done = true;
-  return Scalar(total * double(scale));
+  return Scalar(total * double(pass.scale));
+}
+
+template <class Scalar>
+Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
+            const SsimParams& params = {}, int threads = 0) {
+  return ssim_with(pred, target, ws, params, threads, [](int) {});
 }
 
 // inputs:      pred, target [H][W][C], exactly as passed to the preceding ssim() call
 //              that filled `ws` (same params)
 // grad output: v_ssim (scalar)
 // grad input:  v_pred [H][W][C] (resized; overwritten, or added to when accumulate)
-template <class Scalar>
-void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
-              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
+// ssim_vjp_with also calls after_row(y) once for each row y, right after that
+// row of v_pred is written (as ssim_with does).
+template <class Scalar, class AfterRow>
+void ssim_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
+                   Image<Scalar>& v_pred, bool accumulate, int threads, AfterRow&& after_row) {
   using namespace ssim_detail;
   check_images("ssim_vjp", pred, target);
   ensure(ws.forward_done && ws.width == pred.width && ws.height == pred.height && ws.channels == pred.channels,
          "ssim_vjp: the workspace holds no forward pass for a ", pred.width, "x", pred.height, "x",
          pred.channels, " image (call ssim() first with the same images and workspace)");
-  if (accumulate) {
-    ensure(v_pred.same_shape(pred) && v_pred.data.size() == pred.data.size(),
-           "ssim_vjp: accumulate into a gradient image of a different shape");
-  } else if (!v_pred.same_shape(pred) || v_pred.data.size() != pred.data.size()) {
-    v_pred = Image<Scalar>(pred.width, pred.height, pred.channels);
-  }
-  const int W = pred.width, H = pred.height, C = pred.channels;
-  const int S3 = 3 * C;
-  const std::size_t row3 = padded_row_stride(W, ws.params.window / 2) * std::size_t(S3);
+  check_gradient_image("ssim_vjp", pred, v_pred, accumulate);
   threads = resolve_threads(threads);
-  const Scalar* w = ws.window.data();
-  const int r = ws.params.window / 2;
-
+  const SsimPass<Scalar> pass(pred, target, ws.params);
+  const std::size_t row3 = pass.stride * std::size_t(3 * pass.C);
   // The forward maps are windowed sums, so the adjoint filters the derivative maps with
   // the same (symmetric, zero-padded) window.
-  auto dmap_row = [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; };
-  auto gradient_row = [&](int yi, const Scalar* f, Scalar*) {
-    const std::size_t at = std::size_t(yi) * std::size_t(W) * std::size_t(C);
-    const Scalar* x = pred.data.data() + at;
-    const Scalar* t = target.data.data() + at;
-    Scalar* v = v_pred.data.data() + at;
-    if (C == 3) ssim_gradient_row<3>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
-    else ssim_gradient_row<0>(f, x, t, v, std::size_t(W), C, v_ssim, accumulate);
-  };
-  filter_2d_rows(ws, W, H, S3, w, r, threads, dmap_row, gradient_row);
+  filter_2d_rows(
+      ws, pass.W, pass.H, 3 * pass.C, ws.window.data(), pass.r, threads,
+      [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; },
+      [&](int y, const Scalar* f, Scalar*) {
+        pass.gradient_row(y, f, v_ssim, v_pred, accumulate);
+        after_row(y);
+      });
+}
+
+template <class Scalar>
+void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
+              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
+  ssim_vjp_with(pred, target, v_ssim, ws, v_pred, accumulate, threads, [](int) {});
+}
+
+// SSIM and its vector-Jacobian product in one pass: the same value and the
+// same v_pred (overwritten) as ssim() then ssim_vjp(..., accumulate = false),
+// bit for bit, without the whole image's derivative maps. Each band of rows
+// runs the forward filter r rows beyond its ends and feeds the derivative rows
+// it makes straight into the backward filter, so they never leave the cache
+// (the forward work of those 2r rows per band is done twice). v_ssim must be
+// known before the pass (a loss's weight). after_forward_row(y) and
+// after_backward_row(y) are called once per row, as in ssim_with and
+// ssim_vjp_with. The workspace keeps no forward pass for ssim_vjp.
+template <class Scalar, class AfterForwardRow, class AfterBackwardRow>
+Scalar ssim_and_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim,
+                         SsimWorkspace<Scalar>& ws, Image<Scalar>& v_pred, const SsimParams& params, int threads,
+                         AfterForwardRow&& after_forward_row, AfterBackwardRow&& after_backward_row) {
+  using namespace ssim_detail;
+  check_images("ssim", pred, target);
+  check_gradient_image("ssim_vjp", pred, v_pred, false);
+  threads = resolve_threads(threads);
+  const SsimPass<Scalar> pass(pred, target, params);
+  begin_forward(ws, pass, params, false);
+  const int W = pass.W, H = pass.H, S5 = 5 * pass.C, S3 = 3 * pass.C, r = pass.r;
+  const Scalar* w = ws.window.data();
+  using Filter = BandFilter2D<Scalar>;
+  constexpr int K = Filter::K;
+  constexpr std::size_t kLine = 64 / sizeof(Scalar);
+  const std::size_t forward_values = Filter::memory_values(W, S5, r);
+  const std::size_t row3 = pass.stride * std::size_t(S3);
+  const std::size_t need = forward_values + Filter::memory_values(W, S3, r) + std::size_t(K) * row3 + kLine;
+  if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
+  // Fewer, longer bands than the separate passes': each band's forward overlap is 2r rows.
+  const int bands = std::max(1, std::min(2 * threads, H / 128));
+  parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
+    const int y0 = int(std::size_t(H) * band / std::size_t(bands));
+    const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
+    Scalar* memory = worker_memory(ws, worker, need);
+    Filter forward(memory, W, H, S5, w, r, std::max(0, y0 - r), std::min(H, y1 + r));
+    Filter backward(memory + forward_values, W, H, S3, w, r, y0, y1);
+    // The derivative rows of the forward's last K rows, padded as the backward reads them.
+    Scalar* dmaps = memory + forward_values + Filter::memory_values(W, S3, r);
+    dmaps += (kLine - reinterpret_cast<std::uintptr_t>(dmaps) / sizeof(Scalar) % kLine) % kLine;
+    std::fill(dmaps, dmaps + std::size_t(K) * row3, Scalar(0));
+    int made = forward.row();  // the first derivative row the buffer holds
+    const auto derivative_row = [&](int y, Scalar*) -> const Scalar* {
+      while (forward.row() <= y) {
+        made = forward.row();
+        const int rows = forward.next([&](int z, Scalar* prod) { return pass.products(z, prod); });
+        for (int k = 0; k < rows; ++k) {
+          const int z = made + k;
+          const double sum = pass.map_row(forward.output(k), dmaps + std::size_t(k) * row3, forward.scratch());
+          if (z >= y0 && z < y1) {  // each row's sum and call once, in its own band
+            ws.row_sums[std::size_t(z)] = sum;
+            after_forward_row(z);
+          }
+        }
+      }
+      return dmaps + std::size_t(y - made) * row3;
+    };
+    while (!backward.done()) {
+      const int y = backward.row(), rows = backward.next(derivative_row);
+      for (int k = 0; k < rows; ++k) {
+        pass.gradient_row(y + k, backward.output(k), v_ssim, v_pred, false);
+        after_backward_row(y + k);
+      }
+    }
+  });
+  return Scalar(sum_in_order(ws.row_sums, std::size_t(H)) * double(pass.scale));
 }
 
 // Convenience for one-off evaluation (metrics): allocates its own workspace.

@@ -140,7 +140,8 @@ struct CombinedLossParams {
 // inputs:     pred, target [H][W][C]
 // grad input: v_pred [H][W][C] = d total / d pred (resized, overwritten)
 // Returns total = (1 - lambda) L1 + lambda (1 - SSIM) and its two terms.
-// Throws when the loss is not finite (a NaN or infinity in either image).
+// Throws when the loss is not finite (a NaN or infinity in either image);
+// v_pred then holds no gradient.
 template <class Scalar>
 LossTerms<Scalar> combined_loss(const Image<Scalar>& pred, const Image<Scalar>& target, Image<Scalar>& v_pred,
                                 SsimWorkspace<Scalar>& ws, const CombinedLossParams& params = {},
@@ -154,26 +155,29 @@ LossTerms<Scalar> combined_loss(const Image<Scalar>& pred, const Image<Scalar>& 
   const int H = pred.height;
   const std::size_t row = std::size_t(pred.width) * std::size_t(pred.channels);
   const std::size_t n = row * std::size_t(H);
-  // L1 and squared error per row (in parallel; rows added in order: the same for
-  // any thread count).
+  // SSIM and its gradient in one pass over the rows (image/ssim.hpp), with the
+  // L1 term's sums and gradient done per row as that pass finishes the row (its
+  // pixels still in cache) instead of in passes of their own; rows are added in
+  // order, so the sums are the same for any thread count.
+  const auto at = [&](int y) { return std::size_t(y) * row; };
   ws.abs_rows.resize(std::size_t(H));
   ws.sq_rows.resize(std::size_t(H));
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
-    error_sums(pred.data.data() + y * row, target.data.data() + y * row, row, ws.abs_rows[y], ws.sq_rows[y]);
-  });
+  const Scalar g = (1 - lambda) / Scalar(n);  // l1_loss_vjp's rule, times 1 - lambda
   LossTerms<Scalar> out;
+  out.ssim = ssim_and_vjp_with(
+      pred, target, -lambda, ws, v_pred, params.ssim, threads,
+      [&](int y) {
+        error_sums(pred.data.data() + at(y), target.data.data() + at(y), row, ws.abs_rows[std::size_t(y)],
+                   ws.sq_rows[std::size_t(y)]);
+      },
+      [&](int y) {
+        add_sign_gradient(pred.data.data() + at(y), target.data.data() + at(y), v_pred.data.data() + at(y), row, g);
+      });
   out.l1 = Scalar(sum_in_order(ws.abs_rows, std::size_t(H)) / double(n));
   out.mse = sum_in_order(ws.sq_rows, std::size_t(H)) / double(n);
-  out.ssim = ssim(pred, target, ws, params.ssim, threads);
   out.total = (1 - lambda) * out.l1 + lambda * (1 - out.ssim);
   ensure(std::isfinite(double(out.total)), "combined_loss: loss is not finite (L1 ", out.l1, ", SSIM ",
          out.ssim, "): the prediction or the target holds NaN or infinity");
-  ssim_vjp(pred, target, -lambda, ws, v_pred, false, threads);
-  // + (1 - lambda) d L1 / d pred (l1_loss_vjp's rule, over rows in parallel).
-  const Scalar g = (1 - lambda) / Scalar(n);
-  parallel_for(std::size_t(H), threads, [&](std::size_t y, int) {
-    add_sign_gradient(pred.data.data() + y * row, target.data.data() + y * row, v_pred.data.data() + y * row, row, g);
-  });
   return out;
 }
 
