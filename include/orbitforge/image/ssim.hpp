@@ -30,6 +30,7 @@
 // count. A caller-owned SsimWorkspace holds every buffer: after the first call at a
 // given size nothing allocates.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -302,8 +303,13 @@ class BandFilter2D {
     std::fill(zeros_, zeros_ + len_, Scalar(0));
     std::fill(raw_, raw_ + padded_len, Scalar(0));
     for (int k = 0; k < K; ++k) out_[k] = cols + std::size_t(k) * len_;
-    in_.resize(std::size_t(2 * r + K));
+    if (2 * r + K > int(in_fixed_.size())) {
+      in_more_.resize(std::size_t(2 * r + K));
+      in_ = in_more_.data();
+    }
   }
+  BandFilter2D(const BandFilter2D&) = delete;  // in_ may point into the object
+  BandFilter2D& operator=(const BandFilter2D&) = delete;
 
   bool done() const { return y_ >= y1_; }
   int row() const { return y_; }  // the first row the next call makes
@@ -318,12 +324,12 @@ class BandFilter2D {
     // Rows missing at the image's top or bottom read a zero row.
     for (int j = 0; j < rows + win - 1; ++j) {
       const int yy = y_ - r_ + j;
-      in_[std::size_t(j)] = yy < 0 || yy >= H_ ? zeros_ : ring_ + std::size_t(yy % ring_rows_) * len_;
+      in_[j] = yy < 0 || yy >= H_ ? zeros_ : ring_ + std::size_t(yy % ring_rows_) * len_;
     }
     if (rows == K && r_ == 5) {  // the default 11-tap window
-      column_taps4<5>(in_.data(), out_, len_, w_);
+      column_taps4<5>(in_, out_, len_, w_);
     } else {
-      for (int k = 0; k < rows; ++k) column_taps1(in_.data() + k, out_[k], len_, w_, r_);
+      for (int k = 0; k < rows; ++k) column_taps1(in_ + k, out_[k], len_, w_, r_);
     }
     y_ += rows;
     return rows;
@@ -338,7 +344,11 @@ class BandFilter2D {
   std::size_t len_ = 0;
   Scalar *ring_ = nullptr, *raw_ = nullptr, *zeros_ = nullptr, *scratch_ = nullptr;
   Scalar* out_[K];
-  std::vector<const Scalar*> in_;  // the column pass's 2r + K input rows
+  // The column pass's 2r + K input rows: in the object up to a 17-tap window,
+  // so that a band allocates nothing.
+  std::array<const Scalar*, 2 * 8 + K> in_fixed_{};
+  std::vector<const Scalar*> in_more_;
+  const Scalar** in_ = in_fixed_.data();
 };
 
 // Bands of at least 64 rows keep the overlap small; 4 per thread balance the load.
