@@ -262,6 +262,13 @@ void column_taps1(const Scalar* const* in, Scalar* out, std::size_t n, const Sca
   }
 }
 
+// p advanced to the next cache line (p itself when it starts one).
+template <class Scalar>
+Scalar* align_to_line(Scalar* p) {
+  constexpr std::size_t kLine = 64 / sizeof(Scalar);
+  return p + (kLine - reinterpret_cast<std::uintptr_t>(p) / sizeof(Scalar) % kLine) % kLine;
+}
+
 // The 2D filter over one band of output rows [y0, y1), without materialising
 // the row-filtered image: it keeps the last 2r + 4 row-filtered rows in a ring
 // (about 1 MB for the forward at 896 wide) and filters along columns from
@@ -291,7 +298,7 @@ class BandFilter2D {
     // The ring starts on a cache line: with len a multiple of 16 values every
     // ring row is then aligned, and the column pass's loads and the row pass's
     // stores do not straddle lines (docs/benchmarks.md).
-    memory += (kLine - reinterpret_cast<std::uintptr_t>(memory) / sizeof(Scalar) % kLine) % kLine;
+    memory = align_to_line(memory);
     len_ = std::size_t(planes) * std::size_t(W);
     ring_rows_ = 2 * r + K;
     ring_ = memory;
@@ -554,14 +561,9 @@ void check_gradient_image(const char* who, const Image<Scalar>& pred, Image<Scal
 // inputs: pred, target [H][W][C] (values nominally in [0, 1]; C1, C2 assume range 1).
 // Returns mean SSIM over pixels and channels. Leaves in `ws` what ssim_vjp needs.
 // threads: 0 = default (see parallel_for).
-//
-// ssim_with also calls after_row(y) once for each image row y, on the thread
-// that has just finished the row (its SSIM values summed), so that a caller
-// can fuse its own per-row work over the same images while their rows are in
-// cache. Rows finish in no fixed order.
-template <class Scalar, class AfterRow>
-Scalar ssim_with(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
-                 const SsimParams& params, int threads, AfterRow&& after_row) {
+template <class Scalar>
+Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
+            const SsimParams& params = {}, int threads = 0) {
   using namespace ssim_detail;
   check_images("ssim", pred, target);
   threads = resolve_threads(threads);
@@ -573,28 +575,19 @@ Scalar ssim_with(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWor
       [&](int y, Scalar* prod) { return pass.products(y, prod); },
       [&](int y, const Scalar* m, Scalar* vals) {
         ws.row_sums[std::size_t(y)] = pass.map_row(m, ws.dmaps.data() + std::size_t(y) * row3, vals);
-        after_row(y);
       });
   const double total = sum_in_order(ws.row_sums, std::size_t(pass.H));
   ws.forward_done = true;
   return Scalar(total * double(pass.scale));
 }
 
-template <class Scalar>
-Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspace<Scalar>& ws,
-            const SsimParams& params = {}, int threads = 0) {
-  return ssim_with(pred, target, ws, params, threads, [](int) {});
-}
-
 // inputs:      pred, target [H][W][C], exactly as passed to the preceding ssim() call
 //              that filled `ws` (same params)
 // grad output: v_ssim (scalar)
 // grad input:  v_pred [H][W][C] (resized; overwritten, or added to when accumulate)
-// ssim_vjp_with also calls after_row(y) once for each row y, right after that
-// row of v_pred is written (as ssim_with does).
-template <class Scalar, class AfterRow>
-void ssim_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
-                   Image<Scalar>& v_pred, bool accumulate, int threads, AfterRow&& after_row) {
+template <class Scalar>
+void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
+              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
   using namespace ssim_detail;
   check_images("ssim_vjp", pred, target);
   ensure(ws.forward_done && ws.width == pred.width && ws.height == pred.height && ws.channels == pred.channels,
@@ -609,16 +602,7 @@ void ssim_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target, Scala
   filter_2d_rows(
       ws, pass.W, pass.H, 3 * pass.C, ws.window.data(), pass.r, threads,
       [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; },
-      [&](int y, const Scalar* f, Scalar*) {
-        pass.gradient_row(y, f, v_ssim, v_pred, accumulate);
-        after_row(y);
-      });
-}
-
-template <class Scalar>
-void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim, SsimWorkspace<Scalar>& ws,
-              Image<Scalar>& v_pred, bool accumulate = false, int threads = 0) {
-  ssim_vjp_with(pred, target, v_ssim, ws, v_pred, accumulate, threads, [](int) {});
+      [&](int y, const Scalar* f, Scalar*) { pass.gradient_row(y, f, v_ssim, v_pred, accumulate); });
 }
 
 // SSIM and its vector-Jacobian product in one pass: the same value and the
@@ -627,9 +611,12 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
 // runs the forward filter r rows beyond its ends and feeds the derivative rows
 // it makes straight into the backward filter, so they never leave the cache
 // (the forward work of those 2r rows per band is done twice). v_ssim must be
-// known before the pass (a loss's weight). after_forward_row(y) and
-// after_backward_row(y) are called once per row, as in ssim_with and
-// ssim_vjp_with. The workspace keeps no forward pass for ssim_vjp.
+// known before the pass (a loss's weight). after_forward_row(y) is called once
+// per image row y when its SSIM values are summed, after_backward_row(y) once
+// when its row of v_pred is written, each on the thread that did it and in no
+// fixed order, so that a caller can do its own per-row work over the same
+// images while their rows are in cache. The workspace keeps no forward pass
+// for ssim_vjp.
 template <class Scalar, class AfterForwardRow, class AfterBackwardRow>
 Scalar ssim_and_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_ssim,
                          SsimWorkspace<Scalar>& ws, Image<Scalar>& v_pred, const SsimParams& params, int threads,
@@ -658,8 +645,8 @@ Scalar ssim_and_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target,
     Filter forward(memory, W, H, S5, w, r, std::max(0, y0 - r), std::min(H, y1 + r));
     Filter backward(memory + forward_values, W, H, S3, w, r, y0, y1);
     // The derivative rows of the forward's last K rows, padded as the backward reads them.
-    Scalar* dmaps = memory + forward_values + Filter::memory_values(W, S3, r);
-    dmaps += (kLine - reinterpret_cast<std::uintptr_t>(dmaps) / sizeof(Scalar) % kLine) % kLine;
+    Scalar* dmaps = align_to_line(memory + forward_values + Filter::memory_values(W, S3, r));
+
     std::fill(dmaps, dmaps + std::size_t(K) * row3, Scalar(0));
     int made = forward.row();  // the first derivative row the buffer holds
     const auto derivative_row = [&](int y, Scalar*) -> const Scalar* {
