@@ -368,7 +368,8 @@ TEST_CASE("ssim in one pass calls each row's hooks once, the backward's after it
     const float one_pass = ssim_and_vjp_with(
         x, y, 1.0f, ws, v, SsimParams{}, threads, [&](int row) { ++forward[std::size_t(row)]; },
         [&](int row) {
-          for (int px = 0; px < v.width; ++px) CHECK(std::isfinite(v(px, row, 0)));
+          for (int px = 0; px < v.width; ++px)
+            for (int c = 0; c < v.channels; ++c) CHECK(std::isfinite(v(px, row, c)));
           ++backward[std::size_t(row)];
         });
     SsimWorkspace<float> ws_plain;

@@ -646,7 +646,6 @@ Scalar ssim_and_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target,
     Filter backward(memory + forward_values, W, H, S3, w, r, y0, y1);
     // The derivative rows of the forward's last K rows, padded as the backward reads them.
     Scalar* dmaps = align_to_line(memory + forward_values + Filter::memory_values(W, S3, r));
-
     std::fill(dmaps, dmaps + std::size_t(K) * row3, Scalar(0));
     int made = forward.row();  // the first derivative row the buffer holds
     const auto derivative_row = [&](int y, Scalar*) -> const Scalar* {
