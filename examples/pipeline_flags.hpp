@@ -211,6 +211,10 @@ inline void add_pipeline_flags(CLI::App& app, PipelineFlags& f) {
   app.add_option("--g1-completion-repeats", p.g1_completion_repeats, "sampling weight of G1's completion frames")
       ->transform(at_least(1))
       ->group(method);
+  add_setting_flag(app, "--plateau-g0-only", p.plateau_g1, false,
+                   "with --plateau-window: the plateau stop on G0 only, G1 (and the comparisons) train their whole "
+                   "budget")
+      ->group(method);
   // Defined before the two it clears, so that either one given with it still runs.
   app.add_flag_callback("--no-comparisons", [&p] { p.compare_g1_paper = p.oracle_bound = false; },
                         "neither comparison (--compare-g1-paper or --oracle-bound given too still adds that one)")

@@ -617,6 +617,31 @@ TEST_CASE("pipeline: the still check's figures and decision are in report.json",
   CHECK(again.at("training").at("g0") == r.at("training").at("g0"));
 }
 
+TEST_CASE("pipeline: the plateau stop on G0 only leaves G1 its whole budget", "[pipeline][levers]") {
+  PipelineParams p = tiny_params();
+  p.static_proxy_diagnostics = false;
+  // A quiet span (no densification, no still check) a few passes long, so that
+  // both stages could stop.
+  p.train.densify = false;
+  p.train.still_check_iterations = 0;
+  p.iters_g0 = p.iters_g1 = std::max(p.iters_g0, 150);
+  p.train.plateau_window = 1;       // one pass over the frames
+  p.train.plateau_tolerance = 1e9;  // the second window after the quiet span starts ends training
+  for (const bool g1 : {true, false}) {
+    INFO("plateau_g1 " << g1);
+    p.plateau_g1 = g1;
+    const fs::path dir = scratch().path() / (g1 ? "plateau_both" : "plateau_g0");
+    const auto r = run_pipeline(tiny_input_data(), p, dir.string());
+    CHECK(r.at("settings").at("plateau_g1").get<bool>() == g1);
+    const nlohmann::json& g0 = r.at("training").at("g0");
+    CHECK(g0.at("plateau_stopped").get<bool>());
+    CHECK(g0.at("iterations").get<int>() < p.iters_g0);
+    const nlohmann::json& g1_record = r.at("training").at("g1");
+    CHECK(g1_record.at("plateau_stopped").get<bool>() == g1);
+    CHECK((g1_record.at("iterations").get<int>() < p.iters_g1) == g1);
+  }
+}
+
 // The paper's protocol on a square source: the canonical views are wider than
 // the source frames (same focal), so the oracle's completion frames (recorded,
 // square) and R0's arc renders (wide) differ in shape inside V_hat and G1.

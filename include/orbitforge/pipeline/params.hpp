@@ -82,6 +82,10 @@ struct PipelineParams {
   // of [0, 1], and the MedianGS bake takes medians over mostly unconstrained
   // times (docs/audit.md measures what that costs).
   bool g1_deformable = false;
+  // The plateau stop (train.plateau_window) on G1 too, and on the comparisons
+  // trained as G1 is (the bound, G1 on V_hat); false: on G0 only, and G1 trains
+  // its whole budget (docs/benchmarks.md, "The plateau stop on G0 alone").
+  bool plateau_g1 = true;
   G1Data g1_data = G1Data::source;  // G1's training set (see G1Data)
   bool g1_arc_renders = false;      // with G1Data::source: add R0's arc renders too
   // The lens G1 gives the completion frames (and the report their gap views):

@@ -165,6 +165,13 @@ struct PipelineRun {
     t.min_densify_interval = params.min_densify_interval;
     return t;
   }
+  // train_params for G1 and the reconstructions trained as it is (the bound,
+  // G1 on V_hat): without the plateau stop unless params.plateau_g1.
+  TrainParams g1_train_params(int iters, bool deformable) const {
+    TrainParams t = train_params(iters, deformable);
+    if (!params.plateau_g1) t.plateau_window = 0;
+    return t;
+  }
 
   // The camera G1 (`for_g1`; else G0) gives a completion frame the provider
   // placed at `cam`, its image width x height: with params.g1_source_lens the

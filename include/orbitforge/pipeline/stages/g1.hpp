@@ -78,7 +78,7 @@ GaussianScene<Scalar> train_second(PipelineRun<Scalar>& run, const std::vector<T
   const auto& p = run.params;
   GaussianScene<Scalar> init = p.g1_from_gmed0 ? run.read_scene((fs::path(run.out) / "gmed0.ply").string())
                                                : initial_scene(run, frames);
-  TrainParams tp = run.train_params(p.iters_g1, deformable);
+  TrainParams tp = run.g1_train_params(p.iters_g1, deformable);
   tp.max_sh_degree = std::max(tp.max_sh_degree, init.sh_degree);
   return reconstruct_and_bake(run, frames, std::move(init), tp, dir, key, label, after_step);
 }
@@ -103,7 +103,7 @@ std::uint64_t training_set_signature(const std::vector<TrainFrame<Scalar>>& fram
 template <class Scalar>
 nlohmann::json second_settings(const PipelineRun<Scalar>& run, const std::string& data, bool deformable) {
   const auto& p = run.params;
-  return {{"train", pipeline_detail::train_settings<Scalar>(run.train_params(p.iters_g1, deformable), p)},
+  return {{"train", pipeline_detail::train_settings<Scalar>(run.g1_train_params(p.iters_g1, deformable), p)},
           {"from_gmed0", p.g1_from_gmed0},
           {"data", data},
           {"source_repeats", p.g1_source_repeats},

@@ -326,6 +326,7 @@ nlohmann::json stage_report(PipelineRun<Scalar>& run) {
                         {"g1_deformable", p.g1_deformable},
                         {"g1_arc_renders", p.g1_arc_renders},
                         {"g1_completion_lens", p.g1_source_lens ? "source" : "provider"},
+                        {"plateau_g1", p.plateau_g1},
                         {"median_samples", p.median_samples},
                         {"views", run.fit.views},
                         {"render_stride", p.render_stride},
