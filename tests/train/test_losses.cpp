@@ -380,8 +380,9 @@ TEST_CASE("ssim in one pass calls each row's hooks once, the backward's after it
   }
 }
 
-TEST_CASE("ssim in one pass with its gradient: the separate passes' bits at every window and size",
-          "[train][losses]") {
+TEMPLATE_TEST_CASE("ssim in one pass with its gradient: the separate passes' bits at every window and size",
+                   "[train][losses]", float, double) {
+  using T = TestType;
   std::mt19937 rng(43);
   for (const int window : {1, 3, 7, 11, 13}) {
     SsimParams p;
@@ -389,20 +390,20 @@ TEST_CASE("ssim in one pass with its gradient: the separate passes' bits at ever
     p.sigma = window == 11 ? 1.5 : 0.4 + 0.2 * window;
     // Small, narrower and shorter than the window, and tall enough for several bands.
     for (const Size s : {Size{13, 9, 3}, Size{6, 4, 3}, Size{12, 12, 1}, Size{19, 300, 3}, Size{70, 520, 2}}) {
-      const auto x = random_image<double>(s.w, s.h, s.c, rng);
+      const auto x = random_image<T>(s.w, s.h, s.c, rng);
       const auto y = related_image(x, rng, 0.3);
       for (const int threads : {1, 2, 3}) {
         INFO("window " << window << ", " << s.w << "x" << s.h << "x" << s.c << ", " << threads << " threads");
-        SsimWorkspace<double> ws, ws1;
-        Image<double> v, v1;
-        const double value = ssim(x, y, ws, p, threads);
-        ssim_vjp(x, y, 0.7, ws, v, false, threads);
-        const double one_pass = ssim_and_vjp_with(x, y, 0.7, ws1, v1, p, threads, [](int) {}, [](int) {});
+        SsimWorkspace<T> ws, ws1;
+        Image<T> v, v1;
+        const T value = ssim(x, y, ws, p, threads);
+        ssim_vjp(x, y, T(0.7), ws, v, false, threads);
+        const T one_pass = ssim_and_vjp_with(x, y, T(0.7), ws1, v1, p, threads, [](int) {}, [](int) {});
         CHECK(one_pass == value);
         CHECK(v1.data == v.data);
         // The one pass keeps no forward for ssim_vjp.
-        Image<double> v2;
-        CHECK_THROWS_WITH(ssim_vjp(x, y, 0.7, ws1, v2), Catch::Contains("holds no forward pass"));
+        Image<T> v2;
+        CHECK_THROWS_WITH(ssim_vjp(x, y, T(0.7), ws1, v2), Catch::Contains("holds no forward pass"));
       }
     }
   }

@@ -64,7 +64,7 @@ struct SsimWorkspace {
   SsimParams params;                        // params of the last forward pass
   std::vector<Scalar> window;               // [window] normalised 1D weights
   std::vector<Scalar> dmaps;                // [H][3C][r zeros, W, r zeros] d mean-SSIM / d(mu_x, G*x^2, G*xy)
-  std::vector<std::vector<Scalar>> rows;    // [worker] ring of 2r + 1 filtered rows + scratch rows
+  std::vector<std::vector<Scalar>> rows;    // [worker] its band filters' rows (BandFilter2D::memory_values)
   std::vector<double> row_sums;             // [H] per-row partial sums
   std::vector<double> abs_rows, sq_rows;    // [H] combined_loss: per-row sums of |d| and d^2
 };
@@ -289,8 +289,7 @@ class BandFilter2D {
   // Scalars of working memory one band filter needs, a cache line of slack included.
   static std::size_t memory_values(int W, int planes, int r) {
     const std::size_t len = std::size_t(planes) * std::size_t(W);
-    return std::size_t(2 * r + K + K + 1) * len + std::size_t(planes) * padded_row_stride(W, r) + std::size_t(W) +
-           kLine;
+    return std::size_t(2 * r + K + K + 1) * len + std::size_t(planes) * padded_row_stride(W, r) + kLine;
   }
 
   BandFilter2D(Scalar* memory, int W, int H, int planes, const Scalar* w, int r, int y0, int y1)
@@ -306,7 +305,6 @@ class BandFilter2D {
     const std::size_t padded_len = std::size_t(planes) * padded_row_stride(W, r);
     Scalar* cols = raw_ + padded_len;
     zeros_ = cols + std::size_t(K) * len_;
-    scratch_ = zeros_ + len_;
     std::fill(zeros_, zeros_ + len_, Scalar(0));
     std::fill(raw_, raw_ + padded_len, Scalar(0));
     for (int k = 0; k < K; ++k) out_[k] = cols + std::size_t(k) * len_;
@@ -325,6 +323,15 @@ class BandFilter2D {
   // output(k) is row row() + k until the next call.
   template <class Source>
   int next(Source&& source) {
+    return next_with(source, [this](const Scalar* const* in, int rows) { column_pass(in, rows); });
+  }
+
+  // As next(), with the caller's column pass: columns(in, n) gets the 2r + n
+  // row-filtered rows that output rows row() .. row() + n - 1 are summed from
+  // (row k from in[k .. k + 2r]); column_pass(in, n) is the filter's own, into
+  // output().
+  template <class Source, class Columns>
+  int next_with(Source&& source, Columns&& columns) {
     const int rows = std::min(K, y1_ - y_), win = 2 * r_ + 1;
     for (; next_ <= std::min(H_ - 1, y_ + rows - 1 + r_); ++next_)
       filter_row(source(next_, raw_), ring_ + std::size_t(next_ % ring_rows_) * len_, W_, planes_, w_, r_);
@@ -333,23 +340,25 @@ class BandFilter2D {
       const int yy = y_ - r_ + j;
       in_[j] = yy < 0 || yy >= H_ ? zeros_ : ring_ + std::size_t(yy % ring_rows_) * len_;
     }
-    if (rows == K && r_ == 5) {  // the default 11-tap window
-      column_taps4<5>(in_, out_, len_, w_);
-    } else {
-      for (int k = 0; k < rows; ++k) column_taps1(in_ + k, out_[k], len_, w_, r_);
-    }
+    columns(static_cast<const Scalar* const*>(in_), rows);
     y_ += rows;
     return rows;
   }
+  void column_pass(const Scalar* const* in, int rows) {
+    if (rows == K && r_ == 5) {  // the default 11-tap window
+      column_taps4<5>(in, out_, len_, w_);
+    } else {
+      for (int k = 0; k < rows; ++k) column_taps1(in + k, out_[k], len_, w_, r_);
+    }
+  }
   Scalar* output(int k) const { return out_[k]; }
-  Scalar* scratch() const { return scratch_; }  // W values for the caller
 
  private:
   static constexpr std::size_t kLine = 64 / sizeof(Scalar);
   int W_, H_, planes_, r_, y_, y1_, next_, ring_rows_ = 0;
   const Scalar* w_;
   std::size_t len_ = 0;
-  Scalar *ring_ = nullptr, *raw_ = nullptr, *zeros_ = nullptr, *scratch_ = nullptr;
+  Scalar *ring_ = nullptr, *raw_ = nullptr, *zeros_ = nullptr;
   Scalar* out_[K];
   // The column pass's 2r + K input rows: in the object up to a 17-tap window,
   // so that a band allocates nothing.
@@ -370,11 +379,11 @@ Scalar* worker_memory(SsimWorkspace<Scalar>& ws, int worker, std::size_t values)
 }
 
 // The 2D filter of the whole image in bands of rows on `threads` threads:
-// sink(y, filtered, scratch) gets row y filtered in 2D (planes W apart) and a
-// W-value scratch, once per row.
-template <class Scalar, class Source, class Sink>
-void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
-                    Source&& source, Sink&& sink) {
+// band(f) runs band filter f (planes planes, weights w, radius r) to its end,
+// calling f.next() or f.next_with() until f.done().
+template <class Scalar, class Band>
+void filter_2d_bands(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
+                     Band&& band_body) {
   if (ws.rows.size() < std::size_t(threads)) ws.rows.resize(std::size_t(threads));
   const int bands = filter_bands(H, threads);
   parallel_for(std::size_t(bands), threads, [&](std::size_t band, int worker) {
@@ -382,10 +391,7 @@ void filter_2d_rows(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const S
     const int y1 = int(std::size_t(H) * (band + 1) / std::size_t(bands));
     BandFilter2D<Scalar> f(worker_memory(ws, worker, BandFilter2D<Scalar>::memory_values(W, planes, r)), W, H, planes,
                            w, r, y0, y1);
-    while (!f.done()) {
-      const int y = f.row(), rows = f.next(source);
-      for (int k = 0; k < rows; ++k) sink(y + k, f.output(k), f.scratch());
-    }
+    band_body(f);
   });
 }
 
@@ -469,53 +475,139 @@ struct SsimPass {
     return prod;
   }
 
+  // The SSIM values of lanes from their five filtered values (G*x, G*y,
+  // G*x^2, G*y^2, G*xy), returned, and their derivatives with respect to G*x,
+  // G*x^2 and G*xy (already divided by the pixel-channel count) stored at d0,
+  // d1, d2. Explicit SIMD: GCC leaves the per-pixel loop scalar ("no vectype").
+  template <class B>
+  B ssim_lanes(B mx, B my, B gxx, B gyy, B gxy, Scalar* d0, Scalar* d1, Scalar* d2) const {
+    const B sxx = gxx - mx * mx, syy = gyy - my * my, sxy = gxy - mx * my;
+    const B two(Scalar(2));
+    const B a1 = two * mx * my + B(c1), a2 = two * sxy + B(c2);
+    const B b1 = mx * mx + my * my + B(c1), b2 = sxx + syy + B(c2);
+    const B inv = B(Scalar(1)) / (b1 * b2);
+    const B val = a1 * a2 * inv;
+    // d val / d mu_x holding G*x^2 and G*xy fixed (they carry their own terms).
+    (B(scale) * (two * my * (a2 - a1) * inv - val * (two * mx / b1 - two * mx / b2))).store_unaligned(d0);
+    (B(scale) * (-val / b2)).store_unaligned(d1);       // d val / d (G*x^2)
+    (B(scale) * (two * a1 * inv)).store_unaligned(d2);  // d val / d (G*xy)
+    return val;
+  }
+
+  // A row's SSIM values are summed per lane, then across lanes, channel by
+  // channel: a sum in pixel order is a chain of dependent additions, one per
+  // pixel, which took most of the map's time.
+  static double channel_sum(simd::native_batch<Scalar> lane_sums, Scalar tail) {
+    return double(simd::hadd(lane_sums) + tail);
+  }
+
   // The SSIM map of a row from its five filtered planes m (W apart), and its
-  // derivatives with respect to mu_x, G*x^2 and G*xy (already divided by the
-  // pixel-channel count) into dm: the row's 3C padded planes, at their first
-  // zero. vals: W values of scratch. Returns the row's sum of SSIM values.
-  double map_row(const Scalar* m, Scalar* dm, Scalar* vals) const {
+  // derivatives (ssim_lanes) into dm: the row's 3C padded planes, at their
+  // first zero. Returns the row's sum of SSIM values.
+  double map_row(const Scalar* m, Scalar* dm) const {
+    using VB = simd::native_batch<Scalar>;
+    using S1 = simd::scalar_batch<Scalar>;
     const std::size_t Wz = std::size_t(W);
     dm += r;
     double row_sum = 0;
     for (int c = 0; c < C; ++c) {
-      const Scalar* __restrict mmx = m + std::size_t(c) * Wz;
-      const Scalar* __restrict mmy = m + std::size_t(C + c) * Wz;
-      const Scalar* __restrict mxx = m + std::size_t(2 * C + c) * Wz;
-      const Scalar* __restrict myy = m + std::size_t(3 * C + c) * Wz;
-      const Scalar* __restrict mxy = m + std::size_t(4 * C + c) * Wz;
+      const Scalar* __restrict g[5];
+      for (int p = 0; p < 5; ++p) g[p] = m + std::size_t(p * C + c) * Wz;
       Scalar* __restrict d0 = dm + std::size_t(c) * stride;
       Scalar* __restrict d1 = dm + std::size_t(C + c) * stride;
       Scalar* __restrict d2 = dm + std::size_t(2 * C + c) * stride;
-      // Explicit SIMD: GCC leaves this loop scalar ("no vectype"), and it was
-      // most of the loss's time.
-      auto ssim_at = [&](auto lanes, std::size_t px) {
-        using B = decltype(lanes);
-        const B mx = B::load_unaligned(mmx + px), my = B::load_unaligned(mmy + px);
-        const B sxx = B::load_unaligned(mxx + px) - mx * mx;
-        const B syy = B::load_unaligned(myy + px) - my * my;
-        const B sxy = B::load_unaligned(mxy + px) - mx * my;
-        const B two(Scalar(2));
-        const B a1 = two * mx * my + B(c1), a2 = two * sxy + B(c2);
-        const B b1 = mx * mx + my * my + B(c1), b2 = sxx + syy + B(c2);
-        const B inv = B(Scalar(1)) / (b1 * b2);
-        const B val = a1 * a2 * inv;
-        val.store_unaligned(vals + px);
-        // d val / d mu_x holding G*x^2 and G*xy fixed (they carry their own terms).
-        (B(scale) * (two * my * (a2 - a1) * inv - val * (two * mx / b1 - two * mx / b2))).store_unaligned(d0 + px);
-        (B(scale) * (-val / b2)).store_unaligned(d1 + px);       // d val / d (G*x^2)
-        (B(scale) * (two * a1 * inv)).store_unaligned(d2 + px);  // d val / d (G*xy)
-      };
-      using VB = simd::native_batch<Scalar>;
+      VB lane_sums(Scalar(0));
       std::size_t px = 0;
-      for (; px + VB::size <= Wz; px += VB::size) ssim_at(VB(), px);
-      for (; px < Wz; ++px) ssim_at(simd::scalar_batch<Scalar>(), px);
-      // A separate sum keeps the loop above free of a float reduction, which
-      // compilers do not vectorise without reassociating.
-      Scalar plane_sum = 0;
-      for (std::size_t px = 0; px < Wz; ++px) plane_sum += vals[px];
-      row_sum += double(plane_sum);
+      for (; px + VB::size <= Wz; px += VB::size)
+        lane_sums += ssim_lanes(VB::load_unaligned(g[0] + px), VB::load_unaligned(g[1] + px),
+                                VB::load_unaligned(g[2] + px), VB::load_unaligned(g[3] + px),
+                                VB::load_unaligned(g[4] + px), d0 + px, d1 + px, d2 + px);
+      Scalar tail = 0;
+      for (; px < Wz; ++px)
+        tail += ssim_lanes(S1(g[0][px]), S1(g[1][px]), S1(g[2][px]), S1(g[3][px]), S1(g[4][px]), d0 + px, d1 + px,
+                           d2 + px)
+                    .v;
+      row_sum += channel_sum(lane_sums, tail);
     }
     return row_sum;
+  }
+
+  // map_row of four consecutive rows straight from the column pass's 2r + 4
+  // input rows (in, planes W apart; the default window, r = 5, weights w):
+  // each lane's five filtered values are summed as column_taps4 sums them and
+  // mapped while in registers, so the 5C filtered planes are never stored (the
+  // column pass was bound by those stores). The same values, derivatives and
+  // sums as column_taps4 then map_row. dm: row k's planes at dm + k dm_step.
+  void map_rows4(const Scalar* const* in, const Scalar* w, Scalar* dm, std::size_t dm_step, double* sums) const {
+    constexpr int R = 5, K = 4;
+    using B = simd::native_batch<Scalar>;
+    using S1 = simd::scalar_batch<Scalar>;
+    const std::size_t Wz = std::size_t(W);
+    const Scalar* row[2 * R + K];
+    for (int j = 0; j < 2 * R + K; ++j) row[j] = in[j];
+    for (int k = 0; k < K; ++k) sums[k] = 0;
+    const B wc(w[R]);
+    for (int c = 0; c < C; ++c) {
+      std::size_t plane[5];
+      for (int p = 0; p < 5; ++p) plane[p] = std::size_t(p * C + c) * Wz;
+      Scalar* d[K][3];
+      for (int k = 0; k < K; ++k)
+        for (int q = 0; q < 3; ++q) d[k][q] = dm + std::size_t(k) * dm_step + std::size_t(r) + std::size_t(q * C + c) * stride;
+      B lane_sums[K] = {B(Scalar(0)), B(Scalar(0)), B(Scalar(0)), B(Scalar(0))};
+      std::size_t px = 0;
+      for (; px + B::size <= Wz; px += B::size) {
+        B g[5][K];
+        for (int p = 0; p < 5; ++p) {  // column_taps4's sums
+          const std::size_t i = plane[p] + px;
+          B a0 = wc * B::load_unaligned(row[R] + i), a1 = wc * B::load_unaligned(row[R + 1] + i);
+          B a2 = wc * B::load_unaligned(row[R + 2] + i), a3 = wc * B::load_unaligned(row[R + 3] + i);
+          for (int dd = 1; dd <= R; ++dd) {
+            const B wd(w[R + dd]);
+            a0 = simd::fma(wd, B::load_unaligned(row[R - dd] + i) + B::load_unaligned(row[R + dd] + i), a0);
+            a1 = simd::fma(wd, B::load_unaligned(row[R + 1 - dd] + i) + B::load_unaligned(row[R + 1 + dd] + i), a1);
+            a2 = simd::fma(wd, B::load_unaligned(row[R + 2 - dd] + i) + B::load_unaligned(row[R + 2 + dd] + i), a2);
+            a3 = simd::fma(wd, B::load_unaligned(row[R + 3 - dd] + i) + B::load_unaligned(row[R + 3 + dd] + i), a3);
+          }
+          g[p][0] = a0;
+          g[p][1] = a1;
+          g[p][2] = a2;
+          g[p][3] = a3;
+        }
+        for (int k = 0; k < K; ++k)
+          lane_sums[k] += ssim_lanes(g[0][k], g[1][k], g[2][k], g[3][k], g[4][k], d[k][0] + px, d[k][1] + px,
+                                     d[k][2] + px);
+      }
+      Scalar tails[K] = {};
+      for (; px < Wz; ++px)
+        for (int k = 0; k < K; ++k) {
+          S1 g[5];
+          for (int p = 0; p < 5; ++p) {  // column_taps4's tail
+            const std::size_t i = plane[p] + px;
+            Scalar acc = w[R] * row[k + R][i];
+            for (int dd = 1; dd <= R; ++dd) acc = std::fma(w[R + dd], row[k + R - dd][i] + row[k + R + dd][i], acc);
+            g[p] = S1(acc);
+          }
+          tails[k] += ssim_lanes(g[0], g[1], g[2], g[3], g[4], d[k][0] + px, d[k][1] + px, d[k][2] + px).v;
+        }
+      for (int k = 0; k < K; ++k) sums[k] += channel_sum(lane_sums[k], tails[k]);
+    }
+  }
+
+  // The filter's next rows (f over this pass's 5C product planes, weights w)
+  // mapped: their derivatives into dm + k dm_step (as map_row's dm), their sums
+  // into sums[k]; returns how many rows. Four rows of the default window go
+  // through map_rows4, others through the filter's column pass and map_row.
+  template <class Source>
+  int next_mapped(BandFilter2D<Scalar>& f, Source&& source, const Scalar* w, Scalar* dm, std::size_t dm_step,
+                  double* sums) const {
+    return f.next_with(source, [&](const Scalar* const* in, int rows) {
+      if (rows == BandFilter2D<Scalar>::K && r == 5) {
+        map_rows4(in, w, dm, dm_step, sums);
+        return;
+      }
+      f.column_pass(in, rows);
+      for (int k = 0; k < rows; ++k) sums[k] = map_row(f.output(k), dm + std::size_t(k) * dm_step);
+    });
   }
 
   // Row y of v_pred from its three filtered derivative planes f (W apart).
@@ -570,12 +662,14 @@ Scalar ssim(const Image<Scalar>& pred, const Image<Scalar>& target, SsimWorkspac
   const SsimPass<Scalar> pass(pred, target, params);
   begin_forward(ws, pass, params, true);
   const std::size_t row3 = pass.stride * std::size_t(3 * pass.C);
-  filter_2d_rows(
-      ws, pass.W, pass.H, 5 * pass.C, ws.window.data(), pass.r, threads,
-      [&](int y, Scalar* prod) { return pass.products(y, prod); },
-      [&](int y, const Scalar* m, Scalar* vals) {
-        ws.row_sums[std::size_t(y)] = pass.map_row(m, ws.dmaps.data() + std::size_t(y) * row3, vals);
-      });
+  const Scalar* w = ws.window.data();
+  filter_2d_bands(ws, pass.W, pass.H, 5 * pass.C, w, pass.r, threads, [&](BandFilter2D<Scalar>& f) {
+    const auto products = [&](int y, Scalar* prod) { return pass.products(y, prod); };
+    while (!f.done()) {
+      const std::size_t y = std::size_t(f.row());
+      pass.next_mapped(f, products, w, ws.dmaps.data() + y * row3, row3, ws.row_sums.data() + y);
+    }
+  });
   const double total = sum_in_order(ws.row_sums, std::size_t(pass.H));
   ws.forward_done = true;
   return Scalar(total * double(pass.scale));
@@ -599,10 +693,13 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
   const std::size_t row3 = pass.stride * std::size_t(3 * pass.C);
   // The forward maps are windowed sums, so the adjoint filters the derivative maps with
   // the same (symmetric, zero-padded) window.
-  filter_2d_rows(
-      ws, pass.W, pass.H, 3 * pass.C, ws.window.data(), pass.r, threads,
-      [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; },
-      [&](int y, const Scalar* f, Scalar*) { pass.gradient_row(y, f, v_ssim, v_pred, accumulate); });
+  filter_2d_bands(ws, pass.W, pass.H, 3 * pass.C, ws.window.data(), pass.r, threads, [&](BandFilter2D<Scalar>& f) {
+    const auto dmaps = [&](int y, Scalar*) -> const Scalar* { return ws.dmaps.data() + std::size_t(y) * row3; };
+    while (!f.done()) {
+      const int y = f.row(), rows = f.next(dmaps);
+      for (int k = 0; k < rows; ++k) pass.gradient_row(y + k, f.output(k), v_ssim, v_pred, accumulate);
+    }
+  });
 }
 
 // SSIM and its vector-Jacobian product in one pass: the same value and the
@@ -651,12 +748,13 @@ Scalar ssim_and_vjp_with(const Image<Scalar>& pred, const Image<Scalar>& target,
     const auto derivative_row = [&](int y, Scalar*) -> const Scalar* {
       while (forward.row() <= y) {
         made = forward.row();
-        const int rows = forward.next([&](int z, Scalar* prod) { return pass.products(z, prod); });
+        double sums[K];
+        const int rows = pass.next_mapped(
+            forward, [&](int z, Scalar* prod) { return pass.products(z, prod); }, w, dmaps, row3, sums);
         for (int k = 0; k < rows; ++k) {
           const int z = made + k;
-          const double sum = pass.map_row(forward.output(k), dmaps + std::size_t(k) * row3, forward.scratch());
           if (z >= y0 && z < y1) {  // each row's sum and call once, in its own band
-            ws.row_sums[std::size_t(z)] = sum;
+            ws.row_sums[std::size_t(z)] = sums[k];
             after_forward_row(z);
           }
         }
