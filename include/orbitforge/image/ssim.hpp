@@ -209,39 +209,46 @@ inline std::size_t padded_row_stride(int width, int r) { return std::size_t(widt
 // adds them (pairs, d = 1 .. r in order), so every output is the same sum
 // whatever the grouping. Four rows at a time read each input row from L2 once
 // and the repeats from L1: reading every tap of every row from the ring (in L2)
-// made the column pass bandwidth bound.
+// made the column pass bandwidth bound. column_sums4 sums lanes i .. i +
+// B::size of the four rows into a[0..3], column_sum1 value i of row k.
+template <int R, class B, class Scalar>
+inline void column_sums4(const Scalar* const* row, std::size_t i, const Scalar* w, B (&a)[4]) {
+  const B wc(w[R]);
+  B a0 = wc * B::load_unaligned(row[R] + i), a1 = wc * B::load_unaligned(row[R + 1] + i);
+  B a2 = wc * B::load_unaligned(row[R + 2] + i), a3 = wc * B::load_unaligned(row[R + 3] + i);
+  for (int d = 1; d <= R; ++d) {
+    const B wd(w[R + d]);
+    a0 = simd::fma(wd, B::load_unaligned(row[R - d] + i) + B::load_unaligned(row[R + d] + i), a0);
+    a1 = simd::fma(wd, B::load_unaligned(row[R + 1 - d] + i) + B::load_unaligned(row[R + 1 + d] + i), a1);
+    a2 = simd::fma(wd, B::load_unaligned(row[R + 2 - d] + i) + B::load_unaligned(row[R + 2 + d] + i), a2);
+    a3 = simd::fma(wd, B::load_unaligned(row[R + 3 - d] + i) + B::load_unaligned(row[R + 3 + d] + i), a3);
+  }
+  a[0] = a0;
+  a[1] = a1;
+  a[2] = a2;
+  a[3] = a3;
+}
+
+template <int R, class Scalar>
+inline Scalar column_sum1(const Scalar* const* row, int k, std::size_t i, const Scalar* w) {
+  Scalar acc = w[R] * row[k + R][i];
+  for (int d = 1; d <= R; ++d) acc = std::fma(w[R + d], row[k + R - d][i] + row[k + R + d][i], acc);
+  return acc;
+}
+
 template <int R, class Scalar>
 void column_taps4(const Scalar* const* in, Scalar* const* out, std::size_t n, const Scalar* w) {
   using B = simd::native_batch<Scalar>;
   const Scalar* row[2 * R + 4];
   for (int j = 0; j < 2 * R + 4; ++j) row[j] = in[j];
-  Scalar* o0 = out[0];
-  Scalar* o1 = out[1];
-  Scalar* o2 = out[2];
-  Scalar* o3 = out[3];
-  const B wc(w[R]);
   std::size_t i = 0;
   for (; i + B::size <= n; i += B::size) {
-    B a0 = wc * B::load_unaligned(row[R] + i), a1 = wc * B::load_unaligned(row[R + 1] + i);
-    B a2 = wc * B::load_unaligned(row[R + 2] + i), a3 = wc * B::load_unaligned(row[R + 3] + i);
-    for (int d = 1; d <= R; ++d) {
-      const B wd(w[R + d]);
-      a0 = simd::fma(wd, B::load_unaligned(row[R - d] + i) + B::load_unaligned(row[R + d] + i), a0);
-      a1 = simd::fma(wd, B::load_unaligned(row[R + 1 - d] + i) + B::load_unaligned(row[R + 1 + d] + i), a1);
-      a2 = simd::fma(wd, B::load_unaligned(row[R + 2 - d] + i) + B::load_unaligned(row[R + 2 + d] + i), a2);
-      a3 = simd::fma(wd, B::load_unaligned(row[R + 3 - d] + i) + B::load_unaligned(row[R + 3 + d] + i), a3);
-    }
-    a0.store_unaligned(o0 + i);
-    a1.store_unaligned(o1 + i);
-    a2.store_unaligned(o2 + i);
-    a3.store_unaligned(o3 + i);
+    B a[4];
+    column_sums4<R>(row, i, w, a);
+    for (int k = 0; k < 4; ++k) a[k].store_unaligned(out[k] + i);
   }
   for (; i < n; ++i)
-    for (int k = 0; k < 4; ++k) {
-      Scalar acc = w[R] * row[k + R][i];
-      for (int d = 1; d <= R; ++d) acc = std::fma(w[R + d], row[k + R - d][i] + row[k + R + d][i], acc);
-      out[k][i] = acc;
-    }
+    for (int k = 0; k < 4; ++k) out[k][i] = column_sum1<R>(row, k, i, w);
 }
 
 // One output row of the column pass, any radius: the same sum as column_taps4.
@@ -546,7 +553,6 @@ struct SsimPass {
     const Scalar* row[2 * R + K];
     for (int j = 0; j < 2 * R + K; ++j) row[j] = in[j];
     for (int k = 0; k < K; ++k) sums[k] = 0;
-    const B wc(w[R]);
     for (int c = 0; c < C; ++c) {
       std::size_t plane[5];
       for (int p = 0; p < 5; ++p) plane[p] = std::size_t(p * C + c) * Wz;
@@ -557,22 +563,7 @@ struct SsimPass {
       std::size_t px = 0;
       for (; px + B::size <= Wz; px += B::size) {
         B g[5][K];
-        for (int p = 0; p < 5; ++p) {  // column_taps4's sums
-          const std::size_t i = plane[p] + px;
-          B a0 = wc * B::load_unaligned(row[R] + i), a1 = wc * B::load_unaligned(row[R + 1] + i);
-          B a2 = wc * B::load_unaligned(row[R + 2] + i), a3 = wc * B::load_unaligned(row[R + 3] + i);
-          for (int dd = 1; dd <= R; ++dd) {
-            const B wd(w[R + dd]);
-            a0 = simd::fma(wd, B::load_unaligned(row[R - dd] + i) + B::load_unaligned(row[R + dd] + i), a0);
-            a1 = simd::fma(wd, B::load_unaligned(row[R + 1 - dd] + i) + B::load_unaligned(row[R + 1 + dd] + i), a1);
-            a2 = simd::fma(wd, B::load_unaligned(row[R + 2 - dd] + i) + B::load_unaligned(row[R + 2 + dd] + i), a2);
-            a3 = simd::fma(wd, B::load_unaligned(row[R + 3 - dd] + i) + B::load_unaligned(row[R + 3 + dd] + i), a3);
-          }
-          g[p][0] = a0;
-          g[p][1] = a1;
-          g[p][2] = a2;
-          g[p][3] = a3;
-        }
+        for (int p = 0; p < 5; ++p) column_sums4<R>(row, plane[p] + px, w, g[p]);
         for (int k = 0; k < K; ++k)
           lane_sums[k] += ssim_lanes(g[0][k], g[1][k], g[2][k], g[3][k], g[4][k], d[k][0] + px, d[k][1] + px,
                                      d[k][2] + px);
@@ -581,12 +572,7 @@ struct SsimPass {
       for (; px < Wz; ++px)
         for (int k = 0; k < K; ++k) {
           S1 g[5];
-          for (int p = 0; p < 5; ++p) {  // column_taps4's tail
-            const std::size_t i = plane[p] + px;
-            Scalar acc = w[R] * row[k + R][i];
-            for (int dd = 1; dd <= R; ++dd) acc = std::fma(w[R + dd], row[k + R - dd][i] + row[k + R + dd][i], acc);
-            g[p] = S1(acc);
-          }
+          for (int p = 0; p < 5; ++p) g[p] = S1(column_sum1<R>(row, k, plane[p] + px, w));
           tails[k] += ssim_lanes(g[0], g[1], g[2], g[3], g[4], d[k][0] + px, d[k][1] + px, d[k][2] + px).v;
         }
       for (int k = 0; k < K; ++k) sums[k] += channel_sum(lane_sums[k], tails[k]);
