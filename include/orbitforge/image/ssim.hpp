@@ -386,8 +386,8 @@ Scalar* worker_memory(SsimWorkspace<Scalar>& ws, int worker, std::size_t values)
 }
 
 // The 2D filter of the whole image in bands of rows on `threads` threads:
-// band(f) runs band filter f (planes planes, weights w, radius r) to its end,
-// calling f.next() or f.next_with() until f.done().
+// band_body(f) runs each band's filter f (`planes` planes, weights w, radius
+// r) to its end, calling f.next() or f.next_with() until f.done().
 template <class Scalar, class Band>
 void filter_2d_bands(SsimWorkspace<Scalar>& ws, int W, int H, int planes, const Scalar* w, int r, int threads,
                      Band&& band_body) {
@@ -558,7 +558,8 @@ struct SsimPass {
       for (int p = 0; p < 5; ++p) plane[p] = std::size_t(p * C + c) * Wz;
       Scalar* d[K][3];
       for (int k = 0; k < K; ++k)
-        for (int q = 0; q < 3; ++q) d[k][q] = dm + std::size_t(k) * dm_step + std::size_t(r) + std::size_t(q * C + c) * stride;
+        for (int q = 0; q < 3; ++q)
+          d[k][q] = dm + std::size_t(k) * dm_step + std::size_t(r) + std::size_t(q * C + c) * stride;
       B lane_sums[K] = {B(Scalar(0)), B(Scalar(0)), B(Scalar(0)), B(Scalar(0))};
       std::size_t px = 0;
       for (; px + B::size <= Wz; px += B::size) {
