@@ -409,6 +409,37 @@ TEMPLATE_TEST_CASE("ssim in one pass with its gradient: the separate passes' bit
   }
 }
 
+TEMPLATE_TEST_CASE("ssim: the fused map and the separate passes give the same bits", "[train][losses]", float,
+                   double) {
+  using T = TestType;
+  std::mt19937 rng(47);
+  // Widths around the batch sizes (tails), heights with several four-row steps and a remainder.
+  for (const Size s : {Size{29, 23, 3}, Size{64, 37, 3}, Size{45, 70, 1}}) {
+    const auto x = random_image<T>(s.w, s.h, s.c, rng);
+    const auto y = related_image(x, rng, 0.3);
+    for (const int threads : {1, 2}) {
+      INFO(s.w << "x" << s.h << "x" << s.c << ", " << threads << " threads");
+      SsimWorkspace<T> fused, separate;
+      fused.fuse_map = true;
+      separate.fuse_map = false;
+      Image<T> v_fused, v_separate;
+      const T value_fused = ssim(x, y, fused, SsimParams{}, threads);
+      const T value_separate = ssim(x, y, separate, SsimParams{}, threads);
+      CHECK(value_fused == value_separate);
+      CHECK(fused.dmaps == separate.dmaps);
+      ssim_vjp(x, y, T(0.7), fused, v_fused, false, threads);
+      ssim_vjp(x, y, T(0.7), separate, v_separate, false, threads);
+      CHECK(v_fused.data == v_separate.data);
+      const auto one_pass = [&](SsimWorkspace<T>& ws, Image<T>& v) {
+        return ssim_and_vjp_with(x, y, T(0.7), ws, v, SsimParams{}, threads, [](int) {}, [](int) {});
+      };
+      CHECK(one_pass(fused, v_fused) == one_pass(separate, v_separate));
+      CHECK(v_fused.data == v_separate.data);
+      CHECK(value_fused != T(1));  // related, not equal, images
+    }
+  }
+}
+
 TEST_CASE("float and double agree", "[train][losses]") {
   std::mt19937 rng(5);
   const auto xd = random_image<double>(40, 31, 3, rng);

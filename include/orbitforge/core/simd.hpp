@@ -183,6 +183,15 @@ template <class T> using native_batch = scalar_batch<T>;
 
 template <class B> using mask_t = typename mask_of<B>::type;
 
+// The target's vector registers (AVX-512 and AArch64 have 32, AVX2 and SSE 16):
+// a kernel that keeps many batches live picks its blocking by it, since a
+// blocking that spills runs slower than the unfused passes it replaces.
+#if defined(__AVX512F__) || defined(__aarch64__)
+inline constexpr int vector_registers = 32;
+#else
+inline constexpr int vector_registers = 16;
+#endif
+
 // out[i] = hadd(rows[i]), i < count. One reduction per row costs a chain of
 // shuffles each; for 16-lane float, blocks of 16 rows are instead reduced
 // together by a transposing add tree (about 2 operations per row instead of 8).
