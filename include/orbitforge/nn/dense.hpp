@@ -66,11 +66,11 @@ struct DenseTerm {
 
 namespace detail {
 
-// Accumulators: NB batches of rows x NC columns. 32 vector registers with
-// AVX-512 hold 4 x 4 with room for the weights; 16 registers hold 4 x 2.
+// Accumulators: NB batches of rows x NC columns. 32 vector registers
+// (AVX-512) hold 4 x 4 with room for the weights; 16 registers hold 4 x 2.
 template <class B>
 constexpr int dense_column_group() {
-  return sizeof(B) >= 64 ? 4 : 2;
+  return simd::vector_registers >= 32 && B::size > 1 ? 4 : 2;
 }
 
 // Rows [row0, row0 + NB L) of columns [j, j + NC) over the weight columns
