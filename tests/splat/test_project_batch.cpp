@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <random>
 #include <vector>
@@ -333,4 +334,74 @@ TEMPLATE_TEST_CASE("batch projection: round splats at a step of the radius decid
   const SceneView<S> view(scene);
   const ProjectionStats st = check_project_scene(view, cam, params, reference(view, pc), 1);
   CHECK(st.visible == n);
+}
+
+namespace project_batch_test {
+
+// A SceneView without sh_data(): the batch path reads each coefficient through sh().
+template <class S>
+struct ShByCall {
+  using scalar_type = S;
+  static constexpr ScaleMode scale_mode = ScaleMode::log;
+  const SceneView<S>& v;
+  std::size_t size() const { return v.size(); }
+  int sh_degree() const { return v.sh_degree(); }
+  void mean(std::size_t i, S out[3]) const { v.mean(i, out); }
+  void rotation(std::size_t i, S out[4]) const { v.rotation(i, out); }
+  void scale(std::size_t i, S out[3]) const { v.scale(i, out); }
+  S opacity_logit(std::size_t i) const { return v.opacity_logit(i); }
+  S sh(std::size_t i, int k, int c) const { return v.sh(i, k, c); }
+};
+
+template <class S>
+bool same_bits(const std::vector<S>& a, const std::vector<S>& b) {
+  return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(S)) == 0);
+}
+
+}  // namespace project_batch_test
+
+TEMPLATE_TEST_CASE("batch projection: coefficients transposed from sh_data() give the bits read through sh()",
+                   "[splat][project][batch]", float, double) {
+  using S = TestType;
+  static_assert(adaptor_detail::has_sh_data<SceneView<S>>::value, "SceneView exposes its coefficients");
+  static_assert(adaptor_detail::has_sh_data<DeformedSceneView<S>>::value, "so does DeformedSceneView");
+  static_assert(!adaptor_detail::has_sh_data<ShByCall<S>>::value, "the wrapper hides them");
+  const auto cam = camera<S>();
+  std::mt19937 rng(15);
+  std::uniform_real_distribution<double> u(-1, 1);
+  constexpr std::size_t W = simd::native_batch<S>::size;
+  // Whole batches only, a partial last batch, and sizes where the last whole
+  // batch's blocks would read past the array (degree 0 to 2: 3 k is not a
+  // multiple of the lane count).
+  for (int degree = 0; degree <= 3; ++degree)
+    for (std::size_t n : {W, 2 * W + 3, 4 * W, std::size_t(1001)}) {
+      CAPTURE(degree, n);
+      const auto scene = mixed_scene<S>(rng, n, degree, cam);
+      const SceneView<S> view(scene);
+      const ShByCall<S> by_call{view};
+      ProjectedSplats<S> a, b;
+      ProjectionStats sa, sb;
+      project_scene(view, cam, ProjectionParams{}, a, &sa, 1);
+      project_scene(by_call, cam, ProjectionParams{}, b, &sb, 1);
+      check_same<S>(sa, sb);
+      CHECK(a.radius == b.radius);
+      CHECK(a.rect_x0 == b.rect_x0);
+      CHECK(a.rect_y1 == b.rect_y1);
+      for (auto f : {&ProjectedSplats<S>::mean_x, &ProjectedSplats<S>::conic_b, &ProjectedSplats<S>::opacity,
+                     &ProjectedSplats<S>::color_r, &ProjectedSplats<S>::color_g, &ProjectedSplats<S>::color_b,
+                     &ProjectedSplats<S>::depth})
+        CHECK(same_bits(a.*f, b.*f));
+
+      // The VJP gathers its lanes the same way.
+      ProjectedSplatsGrad<S> w;
+      w.assign_zero(n);
+      for (auto* g : {&w.v_mean_x, &w.v_conic_a, &w.v_opacity, &w.v_color_r, &w.v_color_g, &w.v_color_b, &w.v_depth})
+        for (auto& x : *g) x = S(u(rng));
+      GaussianSceneGrad<S> ga, gb;
+      project_scene_vjp(view, cam, ProjectionParams{}, a, w, ga, Freeze{}, 1);
+      project_scene_vjp(by_call, cam, ProjectionParams{}, a, w, gb, Freeze{}, 1);
+      CHECK(same_bits(ga.sh, gb.sh));
+      CHECK(same_bits(ga.means, gb.means));
+      CHECK(same_bits(ga.opacity_logits, gb.opacity_logits));
+    }
 }

@@ -21,6 +21,7 @@
 #include "orbitforge/core/simd.hpp"
 #include "orbitforge/splat/project_gaussian.hpp"
 #include "orbitforge/splat/projected.hpp"
+#include "orbitforge/splat/scene_adaptor.hpp"
 
 namespace orbitforge {
 
@@ -38,10 +39,20 @@ struct GaussianLanes {
 };
 
 // Lanes j < count <- Gaussians i0 + j; the other lanes get harmless values.
+// An adaptor with sh_data() has a whole batch's coefficients transposed from
+// its memory, where the blocks' reads past the batch's last row (up to B::size
+// - 1 values of the next Gaussian) stay inside the array; the rows past 3
+// k_count are then unspecified, and unread.
 template <class B, class Scene, class Scalar, int W>
 inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_count,
                          GaussianLanes<Scalar, W>& L) {
   using G = GaussianLanes<Scalar, W>;
+  const std::size_t sh_values = std::size_t(3 * k_count);
+  bool sh_direct = false;
+  if constexpr (adaptor_detail::has_sh_data<Scene>::value) {
+    const std::size_t blocks = (sh_values + std::size_t(W) - 1) / std::size_t(W);
+    sh_direct = count == W && (i0 + std::size_t(W) - 1) * sh_values + blocks * std::size_t(W) <= scene.size() * sh_values;
+  }
   for (int j = 0; j < count; ++j) {
     const std::size_t i = i0 + std::size_t(j);
     Scalar* row = L.aos[j];
@@ -49,6 +60,7 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
     scene.rotation(i, row + G::kQuat);
     scene.scale(i, row + G::kScale);
     row[G::kLogit] = scene.opacity_logit(i);
+    if (sh_direct) continue;
     Scalar* sh = row + G::kSh;
     for (int k = 0; k < k_count; ++k)
       for (int c = 0; c < 3; ++c) sh[3 * k + c] = scene.sh(i, k, c);
@@ -56,8 +68,15 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
   for (int j = count; j < W; ++j)
     for (int r = 0; r < G::kRow; ++r) L.aos[j][r] = Scalar(r == G::kQuat);
   // Rows used: the parameters, then the SH rows.
-  const int rows = G::kSh + 3 * k_count;
+  const int rows = G::kSh + (sh_direct ? 0 : int(sh_values));
   for (int r0 = 0; r0 < rows; r0 += W) simd::transpose_block<B>(&L.aos[0][r0], G::kRow, &L.soa[r0][0], W);
+  if constexpr (adaptor_detail::has_sh_data<Scene>::value) {
+    if (sh_direct) {
+      const Scalar* sh = scene.sh_data() + i0 * sh_values;
+      for (std::size_t r0 = 0; r0 < sh_values; r0 += std::size_t(W))
+        simd::transpose_block<B>(sh + r0, sh_values, &L.soa[std::size_t(G::kSh) + r0][0], W);
+    }
+  }
 }
 
 // Distance from x to the nearest integer.

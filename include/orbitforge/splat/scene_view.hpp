@@ -54,6 +54,7 @@ class SceneView {
   void scale(std::size_t i, Scalar out[3]) const { copy_n(&s_.log_scales[3 * i], 3, out); }
   Scalar opacity_logit(std::size_t i) const { return s_.opacity_logits[i]; }
   Scalar sh(std::size_t i, int k, int c) const { return s_.sh[(i * std::size_t(k_) + std::size_t(k)) * 3 + c]; }
+  const Scalar* sh_data() const { return s_.sh.data(); }
   void prefetch(std::size_t first, std::size_t count) const {
     const std::size_t s1 = sizeof(Scalar);
     detail::prefetch_bytes(&s_.means[3 * first], 3 * count * s1);
@@ -110,6 +111,7 @@ class DeformedSceneView {
   }
   Scalar opacity_logit(std::size_t i) const { return b_.opacity_logits[i]; }
   Scalar sh(std::size_t i, int k, int c) const { return b_.sh[(i * std::size_t(k_) + std::size_t(k)) * 3 + c]; }
+  const Scalar* sh_data() const { return b_.sh.data(); }
 
   // Gradients w.r.t. this view (from project_scene_vjp) -> gradients w.r.t. the base
   // scene (means, rotations through normalize(q), log-scales through exp; opacity and
