@@ -364,3 +364,26 @@ TEMPLATE_TEST_CASE("simd::scalar_batch has the batch operators and agrees with e
   CHECK((t == t).v);
   CHECK((t != f).v);
 }
+
+TEMPLATE_TEST_CASE("simd::transpose_block moves every value to its transposed place, at any strides", "[core][simd]",
+                   float, double) {
+  using T = TestType;
+  auto check = [](auto batch_tag, std::size_t in_stride, std::size_t out_stride) {
+    using B = decltype(batch_tag);
+    constexpr std::size_t N = B::size;
+    std::vector<T> in(N * in_stride + 3), out(N * out_stride + 3, T(-1));
+    for (std::size_t i = 0; i < in.size(); ++i) in[i] = T(i) + T(0.25);
+    simd::transpose_block<B>(in.data() + 1, in_stride, out.data() + 2, out_stride);
+    for (std::size_t i = 0; i < out.size(); ++i) {
+      const std::size_t o = i - 2, c = o / out_stride, r = o % out_stride;
+      const bool inside = i >= 2 && c < N && r < N;
+      INFO("lanes " << N << ", strides " << in_stride << " / " << out_stride << ", output " << i);
+      REQUIRE(out[i] == (inside ? in[1 + r * in_stride + c] : T(-1)));  // nothing written outside the block
+    }
+  };
+  for (std::size_t in_stride : {std::size_t(simd::native_batch<T>::size), std::size_t(16), std::size_t(67)})
+    for (std::size_t out_stride : {std::size_t(simd::native_batch<T>::size), std::size_t(16), std::size_t(48)}) {
+      check(simd::native_batch<T>{}, in_stride, out_stride);
+      check(simd::scalar_batch<T>{}, in_stride, out_stride);
+    }
+}
