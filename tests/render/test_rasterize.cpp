@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -611,5 +612,37 @@ TEMPLATE_TEST_CASE("tiles without Gaussians: the background, and their share of 
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) direct += double(v_color(x, y, c)) * double(fwd.transmittance(x, y));
     CHECK(double(grad.v_background[std::size_t(c)]) == Approx(direct).epsilon(sizeof(S) == 4 ? 1e-4 : 1e-12));
+  }
+}
+
+TEMPLATE_TEST_CASE("binning packs in lanes the records it packs one at a time", "[render]", float, double) {
+  // Whole batches of visible Gaussians go through pack_record_lanes, the rest
+  // (culled ones nearby, a subnormal 255 opacity, a chunk's last few) one at a
+  // time; every record must be pack_record's, bit for bit, in depth order.
+  using S = TestType;
+  const int w = 96, h = 80;
+  auto s = random_splats<S>(3001, w, h, 12);
+  constexpr std::size_t N = simd::native_batch<S>::size;
+  s.opacity[5 * N + 1] = std::numeric_limits<S>::min() / 1024;  // 255 opacity subnormal: frexp's path
+  s.radius[7 * N + 2] = 0;                                      // a culled Gaussian inside a batch
+  for (int threads : {1, 2}) {
+    BinWorkspace<S> bins;
+    bin_splats(s, w, h, 16, bins, threads);
+    std::size_t visible = 0;
+    for (std::size_t i = 0; i < s.size(); ++i)
+      visible += s.radius[i] > 0 && s.rect_x0[i] <= s.rect_x1[i] && s.rect_y0[i] <= s.rect_y1[i];
+    REQUIRE(bins.visible() == visible);
+    REQUIRE(visible > 40 * N);
+    for (std::size_t r = 0; r < bins.visible(); ++r) {
+      const std::size_t i = std::size_t(bins.order[r]);
+      SplatRecord<S> expected;
+      detail::pack_record(s, i, expected);
+      INFO("threads " << threads << ", rank " << r << ", Gaussian " << i);
+      REQUIRE(std::memcmp(&bins.records[r], &expected, sizeof(expected)) == 0);
+      if (r > 0) {
+        const std::size_t p = std::size_t(bins.order[r - 1]);
+        REQUIRE((s.depth[p] < s.depth[i] || (s.depth[p] == s.depth[i] && p < i)));
+      }
+    }
   }
 }

@@ -32,6 +32,7 @@
 #include "orbitforge/core/error.hpp"
 #include "orbitforge/core/limits.hpp"
 #include "orbitforge/core/parallel_for.hpp"
+#include "orbitforge/core/simd.hpp"
 #include "orbitforge/splat/projected.hpp"
 #include "orbitforge/splat/splat_record.hpp"
 #include "orbitforge/splat/tile_rows.hpp"
@@ -271,6 +272,66 @@ void radix_sort_stable_parallel(std::vector<Key>& keys, std::vector<std::int32_t
   }
 }
 
+// Gaussian i of s as the rasterizer's record: its fields, base-2 conic,
+// pixel-centre bounds, power floor and index.
+template <class Scalar>
+inline void pack_record(const ProjectedSplats<Scalar>& s, std::size_t i, SplatRecord<Scalar>& rec) {
+  rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
+  rec.pxx = -kHalfLog2e<Scalar> * s.conic_a[i];
+  rec.pxy = Scalar(-2) * kHalfLog2e<Scalar> * s.conic_b[i];
+  rec.pyy = -kHalfLog2e<Scalar> * s.conic_c[i];
+  rec.opacity = s.opacity[i];
+  rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
+  rec.depth = s.depth[i];
+  rec.x_lo = Scalar(s.rect_x0[i]); rec.x_hi = Scalar(s.rect_x1[i] + 1);
+  rec.y_lo = Scalar(s.rect_y0[i]); rec.y_hi = Scalar(s.rect_y1[i] + 1);
+  rec.min_power = alpha_power_floor(rec.opacity);
+  set_record_index(rec, std::int32_t(i));
+}
+
+// The records of Gaussians i .. i + B::size - 1 as lanes, rows[f * B::size +
+// lane] the lane's field f in SplatRecord's order, when each of them is visible,
+// inside the width x height image, finite, and of an opacity whose power floor
+// comes from its bits (nearly every batch of a frame); else false, and the
+// caller packs them one at a time. The values are pack_record's, bit for bit.
+template <class B, class Scalar>
+bool pack_record_lanes(const ProjectedSplats<Scalar>& s, std::size_t i, int width, int height, Scalar* rows) {
+  constexpr std::size_t N = B::size;
+  static_assert(sizeof(SplatRecord<Scalar>) == 16 * sizeof(Scalar), "a record is 16 fields");
+  bool ok = true;
+  for (std::size_t l = 0; l < N; ++l) {
+    const std::size_t g = i + l;
+    const int x0 = s.rect_x0[g], y0 = s.rect_y0[g], x1 = s.rect_x1[g], y1 = s.rect_y1[g];
+    ok &= s.radius[g] > 0 && x0 >= 0 && y0 >= 0 && x0 <= x1 && y0 <= y1 && x1 < width && y1 < height;
+    rows[10 * N + l] = Scalar(x0);
+    rows[11 * N + l] = Scalar(x1 + 1);
+    rows[12 * N + l] = Scalar(y0);
+    rows[13 * N + l] = Scalar(y1 + 1);
+  }
+  if (!ok) return false;
+  const B ld[10] = {B::load_unaligned(&s.mean_x[i]),  B::load_unaligned(&s.mean_y[i]),  B::load_unaligned(&s.conic_a[i]),
+                    B::load_unaligned(&s.conic_b[i]), B::load_unaligned(&s.conic_c[i]), B::load_unaligned(&s.opacity[i]),
+                    B::load_unaligned(&s.color_r[i]), B::load_unaligned(&s.color_g[i]), B::load_unaligned(&s.color_b[i]),
+                    B::load_unaligned(&s.depth[i])};
+  const B fields[10] = {ld[0], ld[1], B(-kHalfLog2e<Scalar>) * ld[2], B(Scalar(-2) * kHalfLog2e<Scalar>) * ld[3],
+                        B(-kHalfLog2e<Scalar>) * ld[4], ld[5], ld[6], ld[7], ld[8], ld[9]};
+  const B zero(Scalar(0));
+  B poison = zero;  // x * 0 is 0 for finite x, NaN otherwise (the scaled conic may overflow)
+  for (const B& v : fields) poison = poison + v * zero;
+  const B x = B(Scalar(255)) * ld[5];
+  const auto normal = (x >= B(std::numeric_limits<Scalar>::min())) & (x <= B(std::numeric_limits<Scalar>::max()));
+  if (!simd::all((poison == zero) & normal)) return false;
+  for (int f = 0; f < 10; ++f) fields[f].store_unaligned(rows + std::size_t(f) * N);
+  alpha_power_floor_lanes(ld[5]).store_unaligned(rows + 14 * N);
+  for (std::size_t l = 0; l < N; ++l) {
+    const std::int32_t index = std::int32_t(i + l);
+    Scalar bits = Scalar(0);
+    std::memcpy(&bits, &index, sizeof(index));
+    rows[15 * N + l] = bits;
+  }
+  return true;
+}
+
 }  // namespace detail
 
 // Fills ws for an image of width x height pixels and tiles of tile_size pixels.
@@ -315,38 +376,48 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
   ws.packed_.resize(packed);
   ws.packed_trims_.resize(packed);
   parallel_for(in_chunks, threads, [&](std::size_t c, int) {
+    using B = simd::native_batch<Scalar>;
+    constexpr std::size_t N = B::size;
+    alignas(64) Scalar rows[16 * N];
     std::size_t k = std::size_t(ws.chunk_entries_[c]), k_trimmed = k;
     auto trim = [&](std::size_t from, std::size_t to) {
-      detail::encode_row_trims_lanes<simd::native_batch<Scalar>>(ws.packed_.data() + from, to - from, ts,
-                                                                  ws.packed_trims_.data() + from);
+      detail::encode_row_trims_lanes<B>(ws.packed_.data() + from, to - from, ts, ws.packed_trims_.data() + from);
       k_trimmed = to;
     };
-    for (std::size_t i = n * c / in_chunks, end = n * (c + 1) / in_chunks; i < end; ++i) {
-      if (!visible(i)) continue;
-      const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
-      ensure(x0 >= 0 && y0 >= 0 && x1 < width && y1 < height, "bin_splats: Gaussian ", i, " has rect [", x0, ",", x1,
-             "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
-      SplatRecord<Scalar>& rec = ws.packed_[k];
-      rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
-      rec.pxx = -detail::kHalfLog2e<Scalar> * s.conic_a[i];
-      rec.pxy = Scalar(-2) * detail::kHalfLog2e<Scalar> * s.conic_b[i];
-      rec.pyy = -detail::kHalfLog2e<Scalar> * s.conic_c[i];
-      rec.opacity = s.opacity[i];
-      rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
-      rec.depth = s.depth[i];
-      rec.x_lo = Scalar(x0); rec.x_hi = Scalar(x1 + 1);
-      rec.y_lo = Scalar(y0); rec.y_hi = Scalar(y1 + 1);
-      rec.min_power = detail::alpha_power_floor(rec.opacity);
-      detail::set_record_index(rec, std::int32_t(i));
-      bool finite = true;
-      for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
-      ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
-      ws.perm_[k] = std::int32_t(k);
-      ws.keys_[k] = detail::sortable_key<Key>(rec.depth);
-      ++k;
-      // Which tiles of its box list each record, 64 records at a time while
-      // they are in cache.
-      if (k - k_trimmed == 64) trim(k_trimmed, k);
+    const std::size_t end = n * (c + 1) / in_chunks;
+    for (std::size_t i = n * c / in_chunks; i < end;) {
+      // A batch of lanes: the records and their trims from the same lanes,
+      // then transposed into place.
+      if (i + N <= end && detail::pack_record_lanes<B>(s, i, width, height, rows)) {
+        if (k_trimmed < k) trim(k_trimmed, k);
+        detail::encode_row_trims_fields<B>(rows, ts, ws.packed_trims_.data() + k);
+        for (std::size_t f0 = 0; f0 < 16; f0 += N) simd::transpose_block<B>(rows + f0 * N, N, &ws.packed_[k].mean_x + f0, 16);
+        for (std::size_t l = 0; l < N; ++l) {
+          ws.perm_[k + l] = std::int32_t(k + l);
+          ws.keys_[k + l] = detail::sortable_key<Key>(s.depth[i + l]);
+        }
+        k += N;
+        k_trimmed = k;
+        i += N;
+        continue;
+      }
+      for (const std::size_t stop = std::min(end, i + N); i < stop; ++i) {
+        if (!visible(i)) continue;
+        const int x0 = s.rect_x0[i], y0 = s.rect_y0[i], x1 = s.rect_x1[i], y1 = s.rect_y1[i];
+        ensure(x0 >= 0 && y0 >= 0 && x1 < width && y1 < height, "bin_splats: Gaussian ", i, " has rect [", x0, ",", x1,
+               "]x[", y0, ",", y1, "] outside the ", width, "x", height, " image");
+        SplatRecord<Scalar>& rec = ws.packed_[k];
+        detail::pack_record(s, i, rec);
+        bool finite = true;
+        for (int f = 0; f < 10; ++f) finite = finite && std::isfinite((&rec.mean_x)[f]);
+        ensure(finite, "bin_splats: visible Gaussian ", i, " has a non-finite field");
+        ws.perm_[k] = std::int32_t(k);
+        ws.keys_[k] = detail::sortable_key<Key>(rec.depth);
+        ++k;
+        // Which tiles of its box list each record, 64 records at a time while
+        // they are in cache.
+        if (k - k_trimmed == 64) trim(k_trimmed, k);
+      }
     }
     trim(k_trimmed, k);
   });

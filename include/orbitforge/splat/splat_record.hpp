@@ -8,6 +8,8 @@
 #include <limits>
 #include <type_traits>
 
+#include "orbitforge/core/simd.hpp"
+
 namespace orbitforge {
 
 // One visible Gaussian as the rasterizer reads it. The rect is kept as
@@ -112,6 +114,35 @@ inline Scalar alpha_power_floor(Scalar opacity) {
   }
   const Scalar log2_upper = Scalar(e_minus_1) + (m - Scalar(1)) + Scalar(0.0861);
   return -log2_upper - Scalar(1e-4);
+}
+
+// alpha_power_floor of each lane, for lanes whose 255 opacity is a normal
+// number (the caller checks): the same operations on the same bits, so the same
+// values. The exponent becomes a Scalar without an integer conversion: its
+// field, or-ed into the significand of 2^digits, is that number plus the field.
+template <class B>
+inline B alpha_power_floor_lanes(const B& opacity) {
+#if ORBITFORGE_SIMD_ENABLED
+  if constexpr (!std::is_same<B, simd::scalar_batch<typename B::value_type>>::value) {
+    using Scalar = typename B::value_type;
+    const B x = B(Scalar(255)) * opacity;
+    using Bits = scalar_bits_t<Scalar>;
+    using BI = xsimd::batch<Bits, typename B::arch_type>;
+    constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
+    constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
+    constexpr Bits bias = exp_mask >> 1;
+    const BI bits = xsimd::bitwise_cast<BI>(x);
+    const B m = xsimd::bitwise_cast<B>((bits & BI(Bits((Bits(1) << mant) - 1))) | BI(Bits(bias << mant)));
+    const B two_mant = B(Scalar(Bits(1) << mant));
+    const B field = xsimd::bitwise_cast<B>(((bits >> mant) & BI(exp_mask)) | xsimd::bitwise_cast<BI>(two_mant)) - two_mant;
+    const B log2_upper = (field - B(Scalar(bias))) + (m - B(Scalar(1))) + B(Scalar(0.0861));
+    return -log2_upper - B(Scalar(1e-4));
+  } else
+#endif
+  {
+    static_assert(B::size == 1, "alpha_power_floor_lanes: one lane without SIMD");
+    return B(alpha_power_floor(opacity.get(0)));
+  }
 }
 
 // exp(power) = 2^(power log2(e)): the conic's coefficients in base 2.

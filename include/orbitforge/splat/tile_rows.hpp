@@ -115,18 +115,17 @@ inline std::uint64_t encode_row_trims(const SplatRecord<Scalar>& rec, int tile_s
 // in mu, which covers the rounding of the chords near the band's ends; the x
 // ends move out by 0.02 pixel plus 2^-20 of the mean's coordinate. Never
 // tighter than TileRowSpans in double beyond those margins.
+//
+// encode_row_trims_fields: the same for B::size records given as their fields
+// in lanes, f[i * B::size + lane] the lane's record field i (SplatRecord's
+// order), into trims[0, B::size).
 template <class B, class Scalar>
-void encode_row_trims_lanes(const SplatRecord<Scalar>* recs, std::size_t count, int tile_size, std::uint64_t* trims) {
+void encode_row_trims_fields(const Scalar* f, int tile_size, std::uint64_t* trims) {
   constexpr std::size_t N = B::size;
-  static_assert(16 % N == 0, "a record's 16 fields split into whole blocks of lanes");
-  alignas(64) Scalar f[16 * N];
   alignas(64) Scalar code[4 * N];  // per lane: the trims' four 16-bit parts
   const B ts = B(Scalar(tile_size)), inv_ts = B(Scalar(1) / Scalar(tile_size));
   const B half = B(Scalar(0.5)), zero = B(Scalar(0)), one = B(Scalar(1));
-  std::size_t k0 = 0;
-  for (; k0 + N <= count; k0 += N) {
-    const Scalar* in = &recs[k0].mean_x;
-    for (std::size_t f0 = 0; f0 < 16; f0 += N) simd::transpose_block<B>(in + f0, 16, f + f0 * N, N);
+  {
     auto field = [&](int i) { return B::load_unaligned(f + std::size_t(i) * N); };
     const B mx = field(0), my = field(1);
     const B a = -field(2), h = Scalar(-0.5) * field(3), c = -field(4);
@@ -171,8 +170,21 @@ void encode_row_trims_lanes(const SplatRecord<Scalar>* recs, std::size_t count, 
     for (int j = 0; j < 4; ++j)
       simd::select(recompute, all_ones, simd::select(whole, zero, part[j])).store_unaligned(code + std::size_t(j) * N);
     for (std::size_t l = 0; l < N; ++l)
-      trims[k0 + l] = std::uint64_t(code[l]) | (std::uint64_t(code[N + l]) << 16) | (std::uint64_t(code[2 * N + l]) << 32) |
-                      (std::uint64_t(code[3 * N + l]) << 48);
+      trims[l] = std::uint64_t(code[l]) | (std::uint64_t(code[N + l]) << 16) | (std::uint64_t(code[2 * N + l]) << 32) |
+                 (std::uint64_t(code[3 * N + l]) << 48);
+  }
+}
+
+template <class B, class Scalar>
+void encode_row_trims_lanes(const SplatRecord<Scalar>* recs, std::size_t count, int tile_size, std::uint64_t* trims) {
+  constexpr std::size_t N = B::size;
+  static_assert(16 % N == 0, "a record's 16 fields split into whole blocks of lanes");
+  alignas(64) Scalar f[16 * N];
+  std::size_t k0 = 0;
+  for (; k0 + N <= count; k0 += N) {
+    const Scalar* in = &recs[k0].mean_x;
+    for (std::size_t f0 = 0; f0 < 16; f0 += N) simd::transpose_block<B>(in + f0, 16, f + f0 * N, N);
+    encode_row_trims_fields<B>(f, tile_size, trims + k0);
   }
   for (; k0 < count; ++k0) trims[k0] = encode_row_trims(recs[k0], tile_size);
 }
