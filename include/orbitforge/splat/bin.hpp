@@ -309,10 +309,11 @@ bool pack_record_lanes(const ProjectedSplats<Scalar>& s, std::size_t i, int widt
     rows[13 * N + l] = Scalar(y1 + 1);
   }
   if (!ok) return false;
-  const B ld[10] = {B::load_unaligned(&s.mean_x[i]),  B::load_unaligned(&s.mean_y[i]),  B::load_unaligned(&s.conic_a[i]),
-                    B::load_unaligned(&s.conic_b[i]), B::load_unaligned(&s.conic_c[i]), B::load_unaligned(&s.opacity[i]),
-                    B::load_unaligned(&s.color_r[i]), B::load_unaligned(&s.color_g[i]), B::load_unaligned(&s.color_b[i]),
-                    B::load_unaligned(&s.depth[i])};
+  const B ld[10] = {B::load_unaligned(&s.mean_x[i]),  B::load_unaligned(&s.mean_y[i]),
+                    B::load_unaligned(&s.conic_a[i]), B::load_unaligned(&s.conic_b[i]),
+                    B::load_unaligned(&s.conic_c[i]), B::load_unaligned(&s.opacity[i]),
+                    B::load_unaligned(&s.color_r[i]), B::load_unaligned(&s.color_g[i]),
+                    B::load_unaligned(&s.color_b[i]), B::load_unaligned(&s.depth[i])};
   const B fields[10] = {ld[0], ld[1], B(-kHalfLog2e<Scalar>) * ld[2], B(Scalar(-2) * kHalfLog2e<Scalar>) * ld[3],
                         B(-kHalfLog2e<Scalar>) * ld[4], ld[5], ld[6], ld[7], ld[8], ld[9]};
   const B zero(Scalar(0));
@@ -391,7 +392,8 @@ void bin_splats(const ProjectedSplats<Scalar>& s, int width, int height, int til
       if (i + N <= end && detail::pack_record_lanes<B>(s, i, width, height, rows)) {
         if (k_trimmed < k) trim(k_trimmed, k);
         detail::encode_row_trims_fields<B>(rows, ts, ws.packed_trims_.data() + k);
-        for (std::size_t f0 = 0; f0 < 16; f0 += N) simd::transpose_block<B>(rows + f0 * N, N, &ws.packed_[k].mean_x + f0, 16);
+        for (std::size_t f0 = 0; f0 < 16; f0 += N)
+          simd::transpose_block<B>(rows + f0 * N, N, &ws.packed_[k].mean_x + f0, 16);
         for (std::size_t l = 0; l < N; ++l) {
           ws.perm_[k + l] = std::int32_t(k + l);
           ws.keys_[k + l] = detail::sortable_key<Key>(s.depth[i + l]);

@@ -51,7 +51,8 @@ inline void gather_lanes(const Scene& scene, std::size_t i0, int count, int k_co
   bool sh_direct = false;
   if constexpr (adaptor_detail::has_sh_data<Scene>::value) {
     const std::size_t blocks = (sh_values + std::size_t(W) - 1) / std::size_t(W);
-    sh_direct = count == W && (i0 + std::size_t(W) - 1) * sh_values + blocks * std::size_t(W) <= scene.size() * sh_values;
+    const std::size_t last_read = (i0 + std::size_t(W) - 1) * sh_values + blocks * std::size_t(W);
+    sh_direct = count == W && last_read <= scene.size() * sh_values;
   }
   for (int j = 0; j < count; ++j) {
     const std::size_t i = i0 + std::size_t(j);

@@ -134,7 +134,8 @@ inline B alpha_power_floor_lanes(const B& opacity) {
     const BI bits = xsimd::bitwise_cast<BI>(x);
     const B m = xsimd::bitwise_cast<B>((bits & BI(Bits((Bits(1) << mant) - 1))) | BI(Bits(bias << mant)));
     const B two_mant = B(Scalar(Bits(1) << mant));
-    const B field = xsimd::bitwise_cast<B>(((bits >> mant) & BI(exp_mask)) | xsimd::bitwise_cast<BI>(two_mant)) - two_mant;
+    const BI field_bits = ((bits >> mant) & BI(exp_mask)) | xsimd::bitwise_cast<BI>(two_mant);
+    const B field = xsimd::bitwise_cast<B>(field_bits) - two_mant;
     const B log2_upper = (field - B(Scalar(bias))) + (m - B(Scalar(1))) + B(Scalar(0.0861));
     return -log2_upper - B(Scalar(1e-4));
   } else

@@ -125,54 +125,52 @@ void encode_row_trims_fields(const Scalar* f, int tile_size, std::uint64_t* trim
   alignas(64) Scalar code[4 * N];  // per lane: the trims' four 16-bit parts
   const B ts = B(Scalar(tile_size)), inv_ts = B(Scalar(1) / Scalar(tile_size));
   const B half = B(Scalar(0.5)), zero = B(Scalar(0)), one = B(Scalar(1));
-  {
-    auto field = [&](int i) { return B::load_unaligned(f + std::size_t(i) * N); };
-    const B mx = field(0), my = field(1);
-    const B a = -field(2), h = Scalar(-0.5) * field(3), c = -field(4);
-    const B mu = -field(14) * B(Scalar(1.001));
-    const B x_lo = field(10), x_last = field(11) - one, y_lo = field(12), y_last = field(13) - one;
-    const B w = h * h;
-    const B det = simd::fma(a, c, -w) + simd::fma(-h, h, w);
-    const auto usable = (a > zero) & (c > zero) & (det > zero) & (mu >= zero);
-    // Unusable lanes compute on harmless values and are replaced below.
-    const B sa = simd::select(usable, a, one), sc = simd::select(usable, c, one);
-    const B sdet = simd::select(usable, det, one), smu = simd::select(usable, mu, zero);
-    const B dx_max = simd::sqrt(smu * sc / sdet), dy_max = simd::sqrt(smu * sa / sdet);
-    const B dy_right = -h * dx_max / sc, inv_a = one / sa, amu = sa * smu;
-    const B margin = B(Scalar(0.02)) + simd::abs(mx) * B(Scalar(1.0 / 1048576));
-    const B bx0 = simd::floor((x_lo + half) * inv_ts), bx1 = simd::floor((x_last + half) * inv_ts);
-    const B by0 = simd::floor((y_lo + half) * inv_ts), by1 = simd::floor((y_last + half) * inv_ts);
-    const B rows = by1 - by0 + one, cols = bx1 - bx0 + one;
-    B part[4] = {zero, zero, zero, zero};  // code_i = left + 16 right, two rows per 16-bit part
-    for (int i = 0; i < kTrimRows && simd::any(B(Scalar(i)) < rows); ++i) {
-      const B ty0 = (by0 + B(Scalar(i))) * ts;
-      const B d0 = simd::max(ty0, y_lo) + half - my, d1 = simd::min(ty0 + ts - one, y_last) + half - my;
-      const B lo = simd::max(d0, -dy_max), hi = simd::min(d1, dy_max);
-      const B dr = simd::min(hi, simd::max(lo, dy_right)), dl = simd::min(hi, simd::max(lo, -dy_right));
-      const B xr = (simd::sqrt(simd::max(zero, amu - sdet * dr * dr)) - h * dr) * inv_a;
-      const B xl = (-simd::sqrt(simd::max(zero, amu - sdet * dl * dl)) - h * dl) * inv_a;
-      const B xa = simd::ceil(simd::max(x_lo, mx + xl - half - margin));
-      const B xb = simd::floor(simd::min(x_last, mx + xr - half + margin));
-      const B left = simd::floor((xa + half) * inv_ts) - bx0, right = bx1 - simd::floor((xb + half) * inv_ts);
-      const auto empty = (lo > hi) | (xa > xb);
-      B code = simd::select(empty, B(Scalar(15 + 16 * 14)), left + B(Scalar(16)) * right);
-      code = simd::select(B(Scalar(i)) < rows, code, zero);  // rows past the box: no trim
-      part[i / 2] = part[i / 2] + code * B(Scalar(i % 2 ? 256 : 1));
-    }
-    // Without a branch per lane: a box of one row or column keeps the whole box
-    // (0), one too large for the codes or not an ellipse recomputes (all ones).
-    const auto whole = (rows == one) | (cols == one);
-    const auto partial = !whole;
-    const auto too_large = (rows > B(Scalar(kTrimRows))) | (cols > B(Scalar(kTrimCols)));
-    const auto not_ellipse = !usable;
-    const auto recompute = partial & (too_large | not_ellipse);
-    const B all_ones = B(Scalar(65535));
-    for (int j = 0; j < 4; ++j)
-      simd::select(recompute, all_ones, simd::select(whole, zero, part[j])).store_unaligned(code + std::size_t(j) * N);
-    for (std::size_t l = 0; l < N; ++l)
-      trims[l] = std::uint64_t(code[l]) | (std::uint64_t(code[N + l]) << 16) | (std::uint64_t(code[2 * N + l]) << 32) |
-                 (std::uint64_t(code[3 * N + l]) << 48);
+  auto field = [&](int i) { return B::load_unaligned(f + std::size_t(i) * N); };
+  const B mx = field(0), my = field(1);
+  const B a = -field(2), h = Scalar(-0.5) * field(3), c = -field(4);
+  const B mu = -field(14) * B(Scalar(1.001));
+  const B x_lo = field(10), x_last = field(11) - one, y_lo = field(12), y_last = field(13) - one;
+  const B w = h * h;
+  const B det = simd::fma(a, c, -w) + simd::fma(-h, h, w);
+  const auto usable = (a > zero) & (c > zero) & (det > zero) & (mu >= zero);
+  // Unusable lanes compute on harmless values and are replaced below.
+  const B sa = simd::select(usable, a, one), sc = simd::select(usable, c, one);
+  const B sdet = simd::select(usable, det, one), smu = simd::select(usable, mu, zero);
+  const B dx_max = simd::sqrt(smu * sc / sdet), dy_max = simd::sqrt(smu * sa / sdet);
+  const B dy_right = -h * dx_max / sc, inv_a = one / sa, amu = sa * smu;
+  const B margin = B(Scalar(0.02)) + simd::abs(mx) * B(Scalar(1.0 / 1048576));
+  const B bx0 = simd::floor((x_lo + half) * inv_ts), bx1 = simd::floor((x_last + half) * inv_ts);
+  const B by0 = simd::floor((y_lo + half) * inv_ts), by1 = simd::floor((y_last + half) * inv_ts);
+  const B rows = by1 - by0 + one, cols = bx1 - bx0 + one;
+  B part[4] = {zero, zero, zero, zero};  // code_i = left + 16 right, two rows per 16-bit part
+  for (int i = 0; i < kTrimRows && simd::any(B(Scalar(i)) < rows); ++i) {
+    const B ty0 = (by0 + B(Scalar(i))) * ts;
+    const B d0 = simd::max(ty0, y_lo) + half - my, d1 = simd::min(ty0 + ts - one, y_last) + half - my;
+    const B lo = simd::max(d0, -dy_max), hi = simd::min(d1, dy_max);
+    const B dr = simd::min(hi, simd::max(lo, dy_right)), dl = simd::min(hi, simd::max(lo, -dy_right));
+    const B xr = (simd::sqrt(simd::max(zero, amu - sdet * dr * dr)) - h * dr) * inv_a;
+    const B xl = (-simd::sqrt(simd::max(zero, amu - sdet * dl * dl)) - h * dl) * inv_a;
+    const B xa = simd::ceil(simd::max(x_lo, mx + xl - half - margin));
+    const B xb = simd::floor(simd::min(x_last, mx + xr - half + margin));
+    const B left = simd::floor((xa + half) * inv_ts) - bx0, right = bx1 - simd::floor((xb + half) * inv_ts);
+    const auto empty = (lo > hi) | (xa > xb);
+    B code = simd::select(empty, B(Scalar(15 + 16 * 14)), left + B(Scalar(16)) * right);
+    code = simd::select(B(Scalar(i)) < rows, code, zero);  // rows past the box: no trim
+    part[i / 2] = part[i / 2] + code * B(Scalar(i % 2 ? 256 : 1));
   }
+  // Without a branch per lane: a box of one row or column keeps the whole box
+  // (0), one too large for the codes or not an ellipse recomputes (all ones).
+  const auto whole = (rows == one) | (cols == one);
+  const auto partial = !whole;
+  const auto too_large = (rows > B(Scalar(kTrimRows))) | (cols > B(Scalar(kTrimCols)));
+  const auto not_ellipse = !usable;
+  const auto recompute = partial & (too_large | not_ellipse);
+  const B all_ones = B(Scalar(65535));
+  for (int j = 0; j < 4; ++j)
+    simd::select(recompute, all_ones, simd::select(whole, zero, part[j])).store_unaligned(code + std::size_t(j) * N);
+  for (std::size_t l = 0; l < N; ++l)
+    trims[l] = std::uint64_t(code[l]) | (std::uint64_t(code[N + l]) << 16) | (std::uint64_t(code[2 * N + l]) << 32) |
+               (std::uint64_t(code[3 * N + l]) << 48);
 }
 
 template <class B, class Scalar>
