@@ -20,7 +20,8 @@ std::vector<S> random_values(std::size_t n, std::mt19937& rng) {
 }  // namespace
 
 // Shapes cover whole batches, a partial last batch, fewer rows than one batch,
-// more than four batches (two row blocks), column counts with a tail, weights
+// a row block whose last batch is partial (2L - 1, 4L - 1), more than four
+// batches (two row blocks), column counts with a tail, weights
 // over several panels (150 columns), an empty second term, and 2L weight
 // columns with a partial row batch (the outer product then runs transposed).
 TEMPLATE_TEST_CASE("dense kernels: forward and outer product against loops in double", "[nn][dense]", float, double) {
@@ -29,7 +30,7 @@ TEMPLATE_TEST_CASE("dense kernels: forward and outer product against loops in do
   const int L = int(B::size);
   const double tol = std::is_same<S, float>::value ? 2e-5 : 1e-13;
   std::mt19937 rng(7);
-  for (int rows : {1, 3, L, L + 3, 4 * L, 5 * L + 1, 64})
+  for (int rows : {1, 3, L, L + 3, 2 * L - 1, 4 * L - 1, 4 * L, 5 * L + 1, 64})
     for (int k1 : {1, 7, L + 1, 2 * L, 150})
       for (int k2 : {0, 5})
         for (int m : {1, 6, 131}) {

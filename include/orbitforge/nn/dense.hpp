@@ -273,10 +273,13 @@ void dense_forward(Eigen::Index rows, const DenseTerm<typename B::value_type>* t
     }
     S* zj = z + j0 * ldz;
     const S* gj = gate ? gate + j0 * ldgate : nullptr;
+    // Row blocks over whole batches, the last one partial (its weights are
+    // padded with zeros; the block stores only the rows below `rows`).
+    const Eigen::Index padded = (rows + L - 1) / L * L;
     Eigen::Index r = 0;
-    for (; r + 4 * L <= rows; r += 4 * L)
+    for (; r + 4 * L <= padded; r += 4 * L)
       detail::dense_forward_rows<B, 4>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate);
-    switch ((rows - r + L - 1) / L) {
+    switch ((padded - r) / L) {
       case 3: detail::dense_forward_rows<B, 3>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
       case 2: detail::dense_forward_rows<B, 2>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
       case 1: detail::dense_forward_rows<B, 1>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
