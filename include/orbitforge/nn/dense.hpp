@@ -20,6 +20,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cstddef>
+#include <type_traits>
 #include <vector>
 
 #include "orbitforge/core/error.hpp"
@@ -67,10 +68,30 @@ struct DenseTerm {
 namespace detail {
 
 // Accumulators: NB batches of rows x NC columns. 32 vector registers
-// (AVX-512) hold 4 x 4 with room for the weights; 16 registers hold 4 x 2.
+// (AVX-512) hold 4 x 4 with room for the weights; 16 registers hold 2 x 6
+// (12 accumulators, 2 weights, 1 broadcast).
 template <class B>
 constexpr int dense_column_group() {
-  return simd::vector_registers >= 32 && B::size > 1 ? 4 : 2;
+  return B::size == 1 ? 2 : simd::vector_registers >= 32 ? 4 : 6;
+}
+template <class B>
+constexpr int dense_row_group() {
+  return B::size == 1 || simd::vector_registers >= 32 ? 4 : 2;
+}
+
+// f(std::integral_constant<int, rem>) for 0 < rem < N, nothing for rem 0: the
+// rows or columns left after the whole groups of N get one block as large as
+// they are. (Columns one block each had left NB accumulators per block, too few
+// to hide the multiply-add latency.)
+template <int N, class F>
+inline void with_remainder(int rem, F&& f) {
+  if constexpr (N > 1) {
+    if (rem == N - 1) {
+      f(std::integral_constant<int, N - 1>{});
+      return;
+    }
+    with_remainder<N - 1>(rem, f);
+  }
 }
 
 // Rows [row0, row0 + NB L) of columns [j, j + NC) over the weight columns
@@ -160,8 +181,10 @@ inline void dense_forward_rows(Eigen::Index rows, Eigen::Index row0, const Dense
       Eigen::Index j = 0;
       for (; j + NC <= m; j += NC)
         dense_forward_block<B, NB, NC>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu, gate, ldgate);
-      for (; j < m; ++j)
-        dense_forward_block<B, NB, 1>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz, relu, gate, ldgate);
+      with_remainder<NC>(int(m - j), [&](auto rem) {
+        dense_forward_block<B, NB, decltype(rem)::value>(rows, row0, terms[t], k0, k1, first, last, bias, j, z, ldz,
+                                                         relu, gate, ldgate);
+      });
       first = false;
       k0 = k1;
     } while (k0 < terms[t].cols);
@@ -216,11 +239,15 @@ inline void dense_outer_rows(typename B::value_type* g, Eigen::Index ldg, Eigen:
     dense_outer_block<B, NB, NC, true>(g, ldg, row0, 0, d, ldd, h, ldh, m, sums);
     k = NC;
   } else if (sums) {
-    dense_outer_block<B, NB, 1, true>(g, ldg, row0, 0, d, ldd, h, ldh, m, sums);
-    k = 1;
+    with_remainder<NC>(int(cols), [&](auto rem) {
+      dense_outer_block<B, NB, decltype(rem)::value, true>(g, ldg, row0, 0, d, ldd, h, ldh, m, sums);
+    });
+    k = cols;
   }
   for (; k + NC <= cols; k += NC) dense_outer_block<B, NB, NC, false>(g, ldg, row0, k, d, ldd, h, ldh, m, nullptr);
-  for (; k < cols; ++k) dense_outer_block<B, NB, 1, false>(g, ldg, row0, k, d, ldd, h, ldh, m, nullptr);
+  with_remainder<NC>(int(cols - k), [&](auto rem) {
+    dense_outer_block<B, NB, decltype(rem)::value, false>(g, ldg, row0, k, d, ldd, h, ldh, m, nullptr);
+  });
 }
 
 // G += D H^T (and sums += D 1 unless null) with rows a multiple of B::size; cols >= 1.
@@ -235,14 +262,12 @@ void dense_outer_whole_batches(typename B::value_type* g, Eigen::Index ldg, Eige
     const Eigen::Index mj = std::min(tile, m - j0);
     const auto* dj = d + j0 * ldd;
     const auto* hj = h + j0 * ldh;
+    constexpr int NR = dense_row_group<B>();
     Eigen::Index r = 0;
-    for (; r + 4 * L <= rows; r += 4 * L) dense_outer_rows<B, 4>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums);
-    switch ((rows - r) / L) {
-      case 3: dense_outer_rows<B, 3>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
-      case 2: dense_outer_rows<B, 2>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
-      case 1: dense_outer_rows<B, 1>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums); break;
-      default: break;
-    }
+    for (; r + NR * L <= rows; r += NR * L) dense_outer_rows<B, NR>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums);
+    with_remainder<NR>(int((rows - r) / L), [&](auto nb) {
+      dense_outer_rows<B, decltype(nb)::value>(g, ldg, r, cols, dj, ldd, hj, ldh, mj, sums);
+    });
   }
 }
 
@@ -275,16 +300,15 @@ void dense_forward(Eigen::Index rows, const DenseTerm<typename B::value_type>* t
     const S* gj = gate ? gate + j0 * ldgate : nullptr;
     // Row blocks over whole batches, the last one partial (its weights are
     // padded with zeros; the block stores only the rows below `rows`).
+    constexpr int NR = detail::dense_row_group<B>();
     const Eigen::Index padded = (rows + L - 1) / L * L;
     Eigen::Index r = 0;
-    for (; r + 4 * L <= padded; r += 4 * L)
-      detail::dense_forward_rows<B, 4>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate);
-    switch ((padded - r) / L) {
-      case 3: detail::dense_forward_rows<B, 3>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
-      case 2: detail::dense_forward_rows<B, 2>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
-      case 1: detail::dense_forward_rows<B, 1>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate); break;
-      default: break;
-    }
+    for (; r + NR * L <= padded; r += NR * L)
+      detail::dense_forward_rows<B, NR>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj, ldgate);
+    detail::with_remainder<NR>(int((padded - r) / L), [&](auto nb) {
+      detail::dense_forward_rows<B, decltype(nb)::value>(rows, r, shifted, n_terms, bias, mj, zj, ldz, relu, gj,
+                                                         ldgate);
+    });
   }
 }
 
