@@ -277,9 +277,9 @@ void radix_sort_stable_parallel(std::vector<Key>& keys, std::vector<std::int32_t
 template <class Scalar>
 inline void pack_record(const ProjectedSplats<Scalar>& s, std::size_t i, SplatRecord<Scalar>& rec) {
   rec.mean_x = s.mean_x[i]; rec.mean_y = s.mean_y[i];
-  rec.pxx = -kHalfLog2e<Scalar> * s.conic_a[i];
-  rec.pxy = Scalar(-2) * kHalfLog2e<Scalar> * s.conic_b[i];
-  rec.pyy = -kHalfLog2e<Scalar> * s.conic_c[i];
+  rec.pxx = kConicDiagToPower<Scalar> * s.conic_a[i];
+  rec.pxy = kConicCrossToPower<Scalar> * s.conic_b[i];
+  rec.pyy = kConicDiagToPower<Scalar> * s.conic_c[i];
   rec.opacity = s.opacity[i];
   rec.color_r = s.color_r[i]; rec.color_g = s.color_g[i]; rec.color_b = s.color_b[i];
   rec.depth = s.depth[i];
@@ -314,8 +314,8 @@ bool pack_record_lanes(const ProjectedSplats<Scalar>& s, std::size_t i, int widt
                     B::load_unaligned(&s.conic_c[i]), B::load_unaligned(&s.opacity[i]),
                     B::load_unaligned(&s.color_r[i]), B::load_unaligned(&s.color_g[i]),
                     B::load_unaligned(&s.color_b[i]), B::load_unaligned(&s.depth[i])};
-  const B fields[10] = {ld[0], ld[1], B(-kHalfLog2e<Scalar>) * ld[2], B(Scalar(-2) * kHalfLog2e<Scalar>) * ld[3],
-                        B(-kHalfLog2e<Scalar>) * ld[4], ld[5], ld[6], ld[7], ld[8], ld[9]};
+  const B fields[10] = {ld[0], ld[1], B(kConicDiagToPower<Scalar>) * ld[2], B(kConicCrossToPower<Scalar>) * ld[3],
+                        B(kConicDiagToPower<Scalar>) * ld[4], ld[5], ld[6], ld[7], ld[8], ld[9]};
   const B zero(Scalar(0));
   B poison = zero;  // x * 0 is 0 for finite x, NaN otherwise (the scaled conic may overflow)
   for (const B& v : fields) poison = poison + v * zero;

@@ -84,6 +84,16 @@ inline std::array<int, 4> record_tile_box(const SplatRecord<Scalar>& rec, int ti
 template <class Scalar>
 using scalar_bits_t = std::conditional_t<sizeof(Scalar) == 4, std::uint32_t, std::uint64_t>;
 
+// An IEEE Scalar's fields: significand bits, the exponent field's mask (after
+// shifting it down by mant) and the exponent bias.
+template <class Scalar>
+struct FloatFields {
+  using Bits = scalar_bits_t<Scalar>;
+  static constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
+  static constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
+  static constexpr Bits bias = exp_mask >> 1;
+};
+
 // A lower bound of log2(1 / (255 opacity)): base-2 powers below it give
 // opacity 2^p2 < 1/255. Without a log per Gaussian (it cost ~1 ms per 300k): with
 // x = 255 opacity = m 2^e, m in [1, 2), log2 x <= e + (m - 1) + 0.0861 (the
@@ -95,9 +105,10 @@ inline Scalar alpha_power_floor(Scalar opacity) {
   static_assert(std::numeric_limits<Scalar>::is_iec559, "alpha_power_floor: IEEE float or double");
   if (!(opacity > Scalar(0))) return std::numeric_limits<Scalar>::infinity();
   using Bits = scalar_bits_t<Scalar>;
-  constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
-  constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
-  constexpr int bias = int(exp_mask >> 1);
+  using Fields = FloatFields<Scalar>;
+  constexpr int mant = Fields::mant;
+  constexpr Bits exp_mask = Fields::exp_mask;
+  constexpr int bias = int(Fields::bias);
   const Scalar x = Scalar(255) * opacity;
   Scalar m;
   int e_minus_1;  // x = m 2^(e_minus_1), m in [1, 2)
@@ -128,9 +139,10 @@ inline B alpha_power_floor_lanes(const B& opacity) {
     const B x = B(Scalar(255)) * opacity;
     using Bits = scalar_bits_t<Scalar>;
     using BI = xsimd::batch<Bits, typename B::arch_type>;
-    constexpr int mant = std::numeric_limits<Scalar>::digits - 1;
-    constexpr Bits exp_mask = Bits((Bits(1) << (8 * sizeof(Scalar) - 1 - mant)) - 1);
-    constexpr Bits bias = exp_mask >> 1;
+    using Fields = FloatFields<Scalar>;
+    constexpr int mant = Fields::mant;
+    constexpr Bits exp_mask = Fields::exp_mask;
+    constexpr Bits bias = Fields::bias;
     const BI bits = xsimd::bitwise_cast<BI>(x);
     const B m = xsimd::bitwise_cast<B>((bits & BI(Bits((Bits(1) << mant) - 1))) | BI(Bits(bias << mant)));
     const B two_mant = B(Scalar(Bits(1) << mant));
@@ -149,6 +161,12 @@ inline B alpha_power_floor_lanes(const B& opacity) {
 // exp(power) = 2^(power log2(e)): the conic's coefficients in base 2.
 template <class Scalar>
 constexpr Scalar kHalfLog2e = Scalar(0.72134752044448170368);
+// The record's power coefficients from the conic (a, b, c): pxx = diag a,
+// pxy = cross b, pyy = diag c, so that p2 = pxx dx^2 + pxy dx dy + pyy dy^2.
+template <class Scalar>
+constexpr Scalar kConicDiagToPower = -kHalfLog2e<Scalar>;
+template <class Scalar>
+constexpr Scalar kConicCrossToPower = Scalar(-2) * kHalfLog2e<Scalar>;
 
 }  // namespace detail
 
