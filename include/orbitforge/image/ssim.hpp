@@ -473,7 +473,7 @@ struct SsimPass {
 
   bool fuse_map;       // SsimWorkspace::fuse_map
 
-  SsimPass(const Image<Scalar>& p, const Image<Scalar>& t, const SsimParams& params, bool fuse_map_ = false)
+  SsimPass(const Image<Scalar>& p, const Image<Scalar>& t, const SsimParams& params, bool fuse_map_)
       : pred(p), target(t), W(p.width), H(p.height), C(p.channels), r(params.window / 2),
         stride(padded_row_stride(p.width, params.window / 2)), c1(Scalar(params.c1)), c2(Scalar(params.c2)),
         scale(Scalar(1.0 / (double(p.width) * double(p.height) * double(p.channels)))), fuse_map(fuse_map_) {}
@@ -685,7 +685,7 @@ void ssim_vjp(const Image<Scalar>& pred, const Image<Scalar>& target, Scalar v_s
          pred.channels, " image (call ssim() first with the same images and workspace)");
   check_gradient_image("ssim_vjp", pred, v_pred, accumulate);
   threads = resolve_threads(threads);
-  const SsimPass<Scalar> pass(pred, target, ws.params);
+  const SsimPass<Scalar> pass(pred, target, ws.params, ws.fuse_map);
   const std::size_t row3 = pass.stride * std::size_t(3 * pass.C);
   // The forward maps are windowed sums, so the adjoint filters the derivative maps with
   // the same (symmetric, zero-padded) window.
